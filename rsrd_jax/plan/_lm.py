@@ -1,0 +1,537 @@
+"""Sparse Levenberg–Marquardt for block-banded nonlinear least squares.
+
+Variables are ``T`` blocks (keyframes) ``x_t`` of ``P`` parameters with a tangent space of
+dimension ``D`` (``D = P`` and additive updates unless a ``retract`` is given). Residual groups
+(:class:`Cost`) are either unary, ``r_t = f(x_t, data_t, params)``, or couple a window of
+``b + 1`` consecutive keyframes, ``r_t = f(x_{t-b..t}, data_t, params)``; each group is a single
+vmapped function, so tracing cost does not grow with ``T``. The objective is
+
+    cost(x) = sum_groups sum_t ||r_t||^2            (sum of squares, as in jaxls)
+
+Each iteration linearises every term with ``jacfwd`` (vmapped over terms), so ``J^T J`` is
+block-banded with bandwidth ``B = max b``, assembled directly as ``(T, B+1, D, D)`` lower bands,
+and the damped normal equations
+
+    (J^T J + lambda * S) delta = -J^T r,      S = I  or  diag(J^T J)  (Marquardt)
+
+are solved exactly with a block-banded Cholesky in ``lax.scan`` (``_banded.py``). Damping follows
+jaxls' trust-region heuristic: the step is accepted when the ratio of actual to predicted
+decrease (``rho``) is at least ``step_quality_min``; then lambda is divided by ``lambda_factor``,
+otherwise multiplied (Nielsen / Madsen et al., *Methods for non-linear least squares problems*,
+2004, §3.2). The predicted decrease uses the normal equations, ``-g.delta + lambda delta^T S delta``
+with ``g = J^T r``, so no extra matrix product is needed.
+
+Gradients of the solution with respect to ``data`` and ``params`` come from the implicit
+function theorem at the returned point, using the exact Hessian of the cost, which has the same
+band structure (block-banded solve again); see :func:`solve_lm`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PyTree
+
+from ._banded import banded_cholesky, banded_cholesky_solve, banded_solve
+
+
+def _as_float(x: Any) -> Array:
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration
+# ----------------------------------------------------------------------------------------------
+
+
+class TrustRegionConfig(eqx.Module):
+    """Levenberg–Marquardt damping schedule (jaxls' defaults). All fields are array leaves, so
+    changing them does not recompile."""
+
+    lambda_initial: Float[Array, ""] = eqx.field(converter=_as_float, default=5e-4)
+    """Initial damping lambda."""
+    lambda_factor: Float[Array, ""] = eqx.field(converter=_as_float, default=2.0)
+    """Lambda is divided by this after an accepted step and multiplied after a rejected one."""
+    lambda_min: Float[Array, ""] = eqx.field(converter=_as_float, default=1e-5)
+    """Lower clip of lambda."""
+    lambda_max: Float[Array, ""] = eqx.field(converter=_as_float, default=1e10)
+    """Upper clip of lambda; a rejected step at ``lambda_max`` ends the solve as ``stalled``."""
+    step_quality_min: Float[Array, ""] = eqx.field(converter=_as_float, default=1e-3)
+    """Minimum ratio of actual to predicted cost decrease for a step to be accepted."""
+
+
+class TerminationConfig(eqx.Module):
+    """When to stop. Tolerances are array leaves; ``max_iterations`` fixes buffer shapes and is
+    static."""
+
+    max_iterations: int = eqx.field(static=True, default=100)
+    """Maximum number of LM iterations (linear solves). Static: it sizes the cost history."""
+    cost_tolerance: Float[Array, ""] = eqx.field(converter=_as_float, default=1e-5)
+    """Converged when an accepted step changes the cost by less than this fraction of it."""
+    gradient_tolerance: Float[Array, ""] = eqx.field(converter=_as_float, default=1e-4)
+    """Converged when ``max |J^T r|`` (half the cost gradient, in tangent coordinates) is below
+    this."""
+    parameter_tolerance: Float[Array, ""] = eqx.field(converter=_as_float, default=1e-6)
+    """Converged when an accepted step has ``||delta|| < tol * (||x|| + tol)``."""
+
+
+class SolverConfig(eqx.Module):
+    """Everything :func:`solve_lm` needs besides the problem."""
+
+    trust_region: TrustRegionConfig = TrustRegionConfig()
+    """Damping schedule."""
+    termination: TerminationConfig = TerminationConfig()
+    """Stopping rules."""
+    damping: Literal["identity", "marquardt"] = eqx.field(static=True, default="identity")
+    """``"identity"``: add ``lambda I`` (jaxls); ``"marquardt"``: add ``lambda diag(J^T J)``
+    (scale-invariant; the diagonal is floored at 1e-9)."""
+    loop: Literal["while", "scan"] = eqx.field(static=True, default="while")
+    """``"while"``: stop as soon as the problem terminates. ``"scan"``: always run
+    ``max_iterations`` steps of a ``lax.scan``, finished problems frozen by a mask; gives a fixed
+    cost per batch and is reverse-differentiable by unrolling."""
+    implicit_diff: bool = eqx.field(static=True, default=True)
+    """Differentiate the solution with the implicit function theorem (exact Hessian at the
+    returned point) instead of through the iterations. Must be ``False`` to backpropagate
+    through the unrolled ``scan`` loop; ``while`` loops are only differentiable implicitly."""
+    throw: bool = eqx.field(static=True, default=False)
+    """Raise (via ``eqx.error_if``) when the result is not ``converged``."""
+
+
+class LMResult(eqx.Enumeration):
+    """Outcome of :func:`solve_lm`."""
+
+    converged = "converged: a cost, gradient or parameter tolerance was met"
+    max_iterations = "max_iterations reached before convergence"
+    stalled = "no acceptable step even at lambda_max"
+    nonfinite = "non-finite cost or Jacobian at the initial point"
+
+
+# ----------------------------------------------------------------------------------------------
+# Problem definition
+# ----------------------------------------------------------------------------------------------
+
+
+class Cost(eqx.Module):
+    """A group of residual terms of one shape, evaluated by one vmapped function.
+
+    ``bandwidth == 0``: ``fn(x_t, data_t, params) -> r`` with ``x_t`` of shape (P,), one term
+    per keyframe t = 0..T-1 (``data`` has leading axis T).
+    ``bandwidth == b > 0``: ``fn(x_window, data_t, params) -> r`` with ``x_window`` of shape
+    (b+1, P) holding ``x_{t-b}..x_t``, one term per t = b..T-1 (``data`` has leading axis T-b).
+    ``r`` is a 1-D residual of fixed length. Residuals enter the cost squared: weight them by
+    ``sqrt(weight)`` to mean ``weight * ||r||^2``.
+    """
+
+    fn: Callable[..., Array] = eqx.field(static=True)
+    """Residual function ``(x, data_t, params) -> r``; ``data_t`` is None if no data is given."""
+    bandwidth: int = eqx.field(static=True, default=0)
+    """Number of earlier keyframes each term couples to (0 unary, 1 velocity, 2 acceleration)."""
+    name: str = eqx.field(static=True, default="")
+    """Name used in error messages."""
+
+
+class BandedProblem(eqx.Module):
+    """A least-squares problem over ``T`` keyframe blocks with block-banded coupling.
+
+    Shapes (``T``, ``P``) come from the initial value and data; this object only holds the
+    (static) functions, so reuse one instance: a new instance with new lambdas recompiles.
+    """
+
+    costs: tuple[Cost, ...] = eqx.field(static=True)
+    """Residual groups; ``data`` passed to :func:`solve_lm` is a tuple aligned with them."""
+    retract: Callable[[Array, Array], Array] | None = eqx.field(static=True, default=None)
+    """Manifold update ``(x_t (P,), delta_t (D,)) -> x_t'`` with ``retract(x, 0) == x``;
+    None for additive updates (``D == P``)."""
+    tangent_dim: int | None = eqx.field(static=True, default=None)
+    """Tangent dimension D when ``retract`` is given (default P)."""
+
+    @property
+    def bandwidth(self) -> int:
+        """Block bandwidth B of ``J^T J`` (max over cost groups)."""
+        return max((c.bandwidth for c in self.costs), default=0)
+
+    def _tangent_dim(self, P: int) -> int:
+        return P if self.tangent_dim is None else self.tangent_dim
+
+    def _retract(self, x: Array, delta: Array) -> Array:
+        if self.retract is None:
+            return x + delta
+        return jax.vmap(self.retract)(x.reshape(-1, x.shape[-1]), delta.reshape(-1, delta.shape[-1])).reshape(
+            x.shape
+        )
+
+    def residuals(
+        self, x: Float[Array, "T P"], data: tuple[PyTree, ...] | None = None, params: PyTree = None
+    ) -> tuple[Float[Array, "..."], ...]:
+        """Residuals of every group, each of shape (terms, residual_dim)."""
+        data = _normalise_data(self, x.shape[0], data)
+        out = []
+        for cost, d in zip(self.costs, data):
+            xw = _windows(x, cost.bandwidth)
+            out.append(jax.vmap(lambda xw_t, d_t, c=cost: c.fn(xw_t, d_t, params))(xw, d))
+        return tuple(out)
+
+    def residual_vector(
+        self, x: Float[Array, "T P"], data: tuple[PyTree, ...] | None = None, params: PyTree = None
+    ) -> Float[Array, " R"]:
+        """All residuals concatenated into one vector (for dense reference solvers)."""
+        return jnp.concatenate([r.reshape(-1) for r in self.residuals(x, data, params)])
+
+    def cost(
+        self, x: Float[Array, "T P"], data: tuple[PyTree, ...] | None = None, params: PyTree = None
+    ) -> Float[Array, ""]:
+        """Sum of squared residuals."""
+        return sum(jnp.sum(r**2) for r in self.residuals(x, data, params))
+
+
+def _windows(x: Array, b: int) -> Array:
+    """(T, P) -> (T, P) for b = 0, else (T-b, b+1, P) stacking x_{t-b..t}."""
+    if b == 0:
+        return x
+    T = x.shape[0]
+    return jnp.stack([x[i : T - b + i] for i in range(b + 1)], axis=1)
+
+
+def _normalise_data(problem: BandedProblem, T: int, data: Any) -> tuple[Any, ...]:
+    """Host-side checks of ``data`` against the cost groups; returns a tuple aligned with them."""
+    n = len(problem.costs)
+    if n == 0:
+        raise ValueError("BandedProblem.costs is empty: nothing to minimise.")
+    if data is None:
+        data = (None,) * n
+    if not isinstance(data, (tuple, list)) or len(data) != n:
+        raise ValueError(f"data must be a tuple with one entry per cost ({n}), got {type(data).__name__}")
+    for cost, d in zip(problem.costs, data):
+        if cost.bandwidth < 0:
+            raise ValueError(f"cost {cost.name!r}: bandwidth must be >= 0, got {cost.bandwidth}")
+        terms = T - cost.bandwidth
+        if terms < 1:
+            raise ValueError(f"cost {cost.name!r}: bandwidth {cost.bandwidth} needs T > {cost.bandwidth}, got T={T}")
+        for leaf in jax.tree.leaves(d):
+            if jnp.ndim(leaf) < 1 or jnp.shape(leaf)[0] != terms:
+                raise ValueError(
+                    f"cost {cost.name!r}: every data leaf needs leading axis T - bandwidth = {terms}, "
+                    f"got shape {jnp.shape(leaf)}"
+                )
+    return tuple(data)
+
+
+# ----------------------------------------------------------------------------------------------
+# Linearisation and assembly
+# ----------------------------------------------------------------------------------------------
+
+
+class _Linearisation(eqx.Module):
+    cost: Float[Array, ""]
+    bands: Float[Array, "T B1 D D"]  # J^T J lower bands
+    grad: Float[Array, "T D"]  # J^T r
+    finite: Bool[Array, ""]
+
+
+def _group_jacobian(problem: BandedProblem, cost: Cost, x: Array, d: Any, params: Any, D: int):
+    """Residuals (n, R) and tangent Jacobians (n, R, b+1, D) of one group."""
+    b = cost.bandwidth
+    xw = _windows(x, b)
+
+    def term(xw_t, d_t):
+        def f(delta):
+            xr = problem._retract(xw_t if b else xw_t[None], delta)
+            r = cost.fn(xr if b else xr[0], d_t, params)
+            if r.ndim != 1:
+                raise ValueError(f"cost {cost.name!r} must return a 1-D residual, got shape {r.shape}")
+            return r, r
+
+        J, r = jax.jacfwd(f, has_aux=True)(jnp.zeros((b + 1, D), x.dtype))
+        return r, J
+
+    return jax.vmap(term)(xw, d)
+
+
+def _linearise(problem: BandedProblem, x: Array, data: tuple, params: Any) -> _Linearisation:
+    T, P = x.shape
+    D = problem._tangent_dim(P)
+    B = problem.bandwidth
+    bands = jnp.zeros((T, B + 1, D, D), x.dtype)
+    grad = jnp.zeros((T, D), x.dtype)
+    cost = jnp.zeros((), x.dtype)
+    finite = jnp.array(True)
+    for c, d in zip(problem.costs, data):
+        b = c.bandwidth
+        r, J = _group_jacobian(problem, c, x, d, params, D)
+        n, R = r.shape
+        Jf = J.reshape(n, R, (b + 1) * D)
+        H = jnp.einsum("nri,nrj->nij", Jf, Jf).reshape(n, b + 1, D, b + 1, D)
+        gw = jnp.einsum("nri,nr->ni", Jf, r).reshape(n, b + 1, D)
+        # Term t covers keyframes t-b..t; its window slot i is keyframe t-b+i, i.e. rows i..i+n-1.
+        for i in range(b + 1):
+            grad = grad.at[i : i + n].add(gw[:, i])
+            for j in range(i + 1):
+                bands = bands.at[i : i + n, i - j].add(H[:, i, :, j, :])
+        cost = cost + jnp.sum(r**2)
+        finite = finite & jnp.all(jnp.isfinite(J)) & jnp.all(jnp.isfinite(r))
+    finite = finite & jnp.isfinite(cost)
+    return _Linearisation(cost, bands, grad, finite)
+
+
+def _hessian_bands(problem: BandedProblem, x: Array, data: tuple, params: Any) -> Array:
+    """Exact Hessian of ``0.5 * cost`` in tangent coordinates, as lower bands (for implicit diff)."""
+    T, P = x.shape
+    D = problem._tangent_dim(P)
+    B = problem.bandwidth
+    bands = jnp.zeros((T, B + 1, D, D), x.dtype)
+    for c, d in zip(problem.costs, data):
+        b = c.bandwidth
+        xw = _windows(x, b)
+
+        def half_sq(delta, xw_t, d_t, c=c, b=b):
+            xr = problem._retract(xw_t if b else xw_t[None], delta)
+            r = c.fn(xr if b else xr[0], d_t, params)
+            return 0.5 * jnp.sum(r**2)
+
+        zero = jnp.zeros((b + 1, D), x.dtype)
+        H = jax.vmap(lambda xw_t, d_t: jax.hessian(half_sq)(zero, xw_t, d_t))(xw, d)  # (n, b+1, D, b+1, D)
+        n = H.shape[0]
+        for i in range(b + 1):
+            for j in range(i + 1):
+                bands = bands.at[i : i + n, i - j].add(H[:, i, :, j, :])
+    return bands
+
+
+def _tangent_grad(problem: BandedProblem, x: Array, data: tuple, params: Any) -> Array:
+    """Gradient of ``0.5 * cost`` with respect to the tangent update at ``x``, shape (T, D)."""
+    T, P = x.shape
+    D = problem._tangent_dim(P)
+    return jax.grad(lambda delta: 0.5 * problem.cost(problem._retract(x, delta), data, params))(
+        jnp.zeros((T, D), x.dtype)
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Solver
+# ----------------------------------------------------------------------------------------------
+
+
+class LMSolution(eqx.Module):
+    """Output of :func:`solve_lm`. Under ``vmap`` every field gains the batch axes."""
+
+    x: Float[Array, "T P"]
+    """Solution (the best accepted iterate)."""
+    cost: Float[Array, ""]
+    """Sum of squared residuals at ``x``."""
+    result: LMResult
+    """Why the solve stopped (``LMResult.converged`` on success)."""
+    iterations: Int[Array, ""]
+    """Number of LM iterations (linear solves) performed."""
+    accepted_steps: Int[Array, ""]
+    """Number of accepted steps."""
+    cost_history: Float[Array, " max_iterations_plus_1"]
+    """Cost after each iteration (entry 0 = initial cost); padded with the final cost."""
+    gradient_max: Float[Array, ""]
+    """``max |J^T r|`` at ``x``."""
+    lambd: Float[Array, ""]
+    """Final damping."""
+
+
+class _State(eqx.Module):
+    x: Array
+    lin: _Linearisation
+    lambd: Array
+    iteration: Array
+    accepted: Array
+    done: Array
+    result: LMResult
+    history: Array
+
+
+def _damping_diag(config: SolverConfig, bands: Array) -> Array:
+    diag = jnp.diagonal(bands[:, 0], axis1=-2, axis2=-1)
+    if config.damping == "identity":
+        return jnp.ones_like(diag)
+    if config.damping == "marquardt":
+        return jnp.maximum(diag, 1e-9)
+    raise ValueError(f"SolverConfig.damping must be 'identity' or 'marquardt', got {config.damping!r}")
+
+
+def _lm_step(problem: BandedProblem, data, params, config: SolverConfig, s: _State) -> _State:
+    tr, term = config.trust_region, config.termination
+    lin = s.lin
+    S = _damping_diag(config, lin.bands)
+    damped = lin.bands.at[:, 0].add(jax.vmap(jnp.diag)(s.lambd * S))
+    delta = banded_solve(damped, -lin.grad)
+    x_new = problem._retract(s.x, delta)
+    lin_new = _linearise(problem, x_new, data, params)
+
+    predicted = -jnp.sum(lin.grad * delta) + s.lambd * jnp.sum(S * delta**2)
+    actual = lin.cost - lin_new.cost
+    rho = actual / predicted
+    step_ok = lin_new.finite & jnp.all(jnp.isfinite(delta))
+    accept = step_ok & (rho >= tr.step_quality_min)
+    # A step that changes nothing (cost equal to the last bit) has converged, not failed.
+    no_change = step_ok & (actual == 0)
+
+    x = jnp.where(accept, x_new, s.x)
+    lin_out = jax.tree.map(lambda a, b: jnp.where(accept, a, b), lin_new, lin)
+    lambd = jnp.where(
+        accept,
+        jnp.maximum(s.lambd / tr.lambda_factor, tr.lambda_min),
+        jnp.minimum(s.lambd * tr.lambda_factor, tr.lambda_max),
+    )
+    useful = accept | no_change
+    rel_cost = jnp.abs(actual) / jnp.maximum(lin.cost, jnp.finfo(lin.cost.dtype).tiny)
+    conv_cost = useful & (rel_cost < term.cost_tolerance)
+    conv_param = useful & (
+        jnp.linalg.norm(delta) < term.parameter_tolerance * (jnp.linalg.norm(s.x) + term.parameter_tolerance)
+    )
+    conv_grad = jnp.max(jnp.abs(lin_out.grad)) < term.gradient_tolerance
+    converged = conv_cost | conv_param | conv_grad
+    stalled = ~accept & (s.lambd >= tr.lambda_max)
+    iteration = s.iteration + 1
+    out_of_steps = iteration >= term.max_iterations
+
+    result = LMResult.where(
+        converged,
+        LMResult.converged,
+        LMResult.where(stalled, LMResult.stalled, LMResult.max_iterations),
+    )
+    done = converged | stalled | out_of_steps
+    history = s.history.at[iteration].set(lin_out.cost)
+    return _State(x, lin_out, lambd, iteration, s.accepted + accept.astype(jnp.int32), done, result, history)
+
+
+def _solve_impl(problem: BandedProblem, x0: Array, data: tuple, params: Any, config: SolverConfig) -> LMSolution:
+    term = config.termination
+    lin0 = _linearise(problem, x0, data, params)
+    conv0 = jnp.max(jnp.abs(lin0.grad)) < term.gradient_tolerance
+    result0 = LMResult.where(
+        ~lin0.finite,
+        LMResult.nonfinite,
+        LMResult.where(conv0, LMResult.converged, LMResult.max_iterations),
+    )
+    done0 = ~lin0.finite | conv0 | (term.max_iterations <= 0)
+    history0 = jnp.full((term.max_iterations + 1,), jnp.nan, x0.dtype).at[0].set(lin0.cost)
+    s0 = _State(
+        x0,
+        lin0,
+        jnp.broadcast_to(config.trust_region.lambda_initial, ()).astype(x0.dtype),
+        jnp.zeros((), jnp.int32),
+        jnp.zeros((), jnp.int32),
+        done0,
+        result0,
+        history0,
+    )
+    step = lambda s: _lm_step(problem, data, params, config, s)  # noqa: E731
+
+    if config.loop == "while":
+        s = jax.lax.while_loop(lambda s: ~s.done, step, s0)
+    elif config.loop == "scan":
+
+        def body(s, _):
+            return jax.lax.cond(s.done, lambda s: s, step, s), None
+
+        s, _ = jax.lax.scan(body, s0, None, length=term.max_iterations)
+    else:
+        raise ValueError(f"SolverConfig.loop must be 'while' or 'scan', got {config.loop!r}")
+
+    idx = jnp.arange(term.max_iterations + 1)
+    history = jnp.where(idx <= s.iteration, s.history, s.lin.cost)
+    sol = LMSolution(
+        x=s.x,
+        cost=s.lin.cost,
+        result=s.result,
+        iterations=s.iteration,
+        accepted_steps=s.accepted,
+        cost_history=history,
+        gradient_max=jnp.max(jnp.abs(s.lin.grad)),
+        lambd=s.lambd,
+    )
+    if config.throw:
+        sol = eqx.tree_at(
+            lambda z: z.x, sol, sol.result.error_if(sol.x, sol.result != LMResult.converged)
+        )
+    return sol
+
+
+# Implicit differentiation: at a stationary point g(x*, theta) = 0 (g = tangent gradient of
+# 0.5 cost), dx*/dtheta = -H^{-1} dg/dtheta with H the exact, block-banded Hessian. The backward
+# pass solves H v = xbar once (band Cholesky) and pulls -v back through g's theta dependence.
+@eqx.filter_custom_vjp
+def _solve_implicit(diff_args, problem, x0, config):
+    data, params = diff_args
+    return _solve_impl(problem, x0, data, params, config)
+
+
+@_solve_implicit.def_fwd
+def _solve_implicit_fwd(perturbed, diff_args, problem, x0, config):
+    del perturbed
+    data, params = diff_args
+    sol = _solve_impl(problem, x0, data, params, config)
+    return sol, sol.x
+
+
+@_solve_implicit.def_bwd
+def _solve_implicit_bwd(x_star, grad_obj, perturbed, diff_args, problem, x0, config):
+    del perturbed, x0, config
+    data, params = diff_args
+    T, P = x_star.shape
+    D = problem._tangent_dim(P)
+    xbar = grad_obj.x
+    if xbar is None:
+        xbar = jnp.zeros_like(x_star)
+    # Ambient cotangent -> tangent cotangent through the retraction at zero.
+    _, retract_vjp = jax.vjp(lambda delta: problem._retract(x_star, delta), jnp.zeros((T, D), x_star.dtype))
+    (delta_bar,) = retract_vjp(xbar)
+    H = _hessian_bands(problem, x_star, data, params)
+    v = banded_cholesky_solve(banded_cholesky(H), delta_bar)
+
+    def g_of_theta(theta):
+        d, p = theta
+        return _tangent_grad(problem, x_star, d, p)
+
+    _, g_vjp = jax.vjp(g_of_theta, (data, params))
+    (theta_bar,) = g_vjp(-v)
+    return theta_bar
+
+
+@eqx.filter_jit
+def _solve_jit(problem: BandedProblem, x0: Array, data: tuple, params: Any, config: SolverConfig) -> LMSolution:
+    if config.implicit_diff:
+        return _solve_implicit((data, params), problem, x0, config)
+    return _solve_impl(problem, x0, data, params, config)
+
+
+def solve_lm(
+    problem: BandedProblem,
+    x0: Float[Array, "T P"],
+    data: tuple[PyTree, ...] | None = None,
+    params: PyTree = None,
+    config: SolverConfig = SolverConfig(),
+) -> LMSolution:
+    """Minimise ``sum ||r||^2`` of a block-banded problem with Levenberg–Marquardt.
+
+    Jitted (compiles once per problem instance, shapes and static config fields); vmap it over
+    candidate problems, e.g. ``jax.vmap(lambda x0, d: solve_lm(prob, x0, d, params, cfg))``.
+
+    Args:
+        problem: residual groups and optional manifold retraction.
+        x0: initial keyframe values, shape (T, P).
+        data: tuple aligned with ``problem.costs``; entry i is a pytree whose leaves have leading
+            axis ``T - costs[i].bandwidth`` (sliced per term), or None.
+        params: pytree shared by all terms (weights, robot model, ...), not sliced.
+        config: damping, termination and loop options.
+
+    Returns:
+        :class:`LMSolution` with the solution, final cost, ``result`` enum, iteration count and
+        cost history. ``jax.grad`` through ``solution.x`` with respect to floating ``data`` and
+        ``params`` leaves uses the implicit function theorem (valid at a converged strict local
+        minimum); ``x0`` gets no gradient.
+    """
+    if jnp.ndim(x0) != 2:
+        raise ValueError(f"x0 must have shape (T, P), got {jnp.shape(x0)}")
+    if not jnp.issubdtype(jnp.result_type(x0), jnp.floating):
+        raise ValueError(f"x0 must be floating point, got dtype {jnp.result_type(x0)}")
+    data = _normalise_data(problem, jnp.shape(x0)[0], data)
+    return _solve_jit(problem, jnp.asarray(x0), data, params, config)
