@@ -1,0 +1,1 @@
+"""Parts: grouping Gaussians into parts (mask voting, automatic grouping) and the ObjectModel (issue 4)."""

@@ -1,0 +1,1 @@
+"""Simulation: MuJoCo execution of a RobotPlan with the object, success per stage (issue 8)."""

@@ -1,0 +1,1 @@
+"""Tracking: 4D-DPM losses, per-frame optimiser, temporal smoothing, multi-seed init, ADD evaluation (issue 5)."""

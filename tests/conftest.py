@@ -1,0 +1,26 @@
+"""Test configuration: fixed PRNG keys, offscreen MuJoCo, small shared fixtures.
+
+jaxtyping's runtime shape checks (with beartype) are enabled for `rsrd_jax` through pytest's
+`--jaxtyping-packages` option in pyproject.toml; warnings are errors there, with named exceptions.
+"""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def key() -> jax.Array:
+    """A fixed PRNG key: tests are deterministic."""
+    return jax.random.key(0)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A fixed numpy generator."""
+    return np.random.default_rng(0)
