@@ -1,0 +1,32 @@
+"""Gaussian splatting: the Gaussians pytree, part posing, EWA projection and a differentiable tile
+rasterizer (RGB, features, depth, alpha in one pass) following gsplat's rules and constants.
+
+Owns rendering of Gaussians. Does not own fitting them to images (3DGS fitting), feature fields
+(`features/`) or part grouping (`parts/`).
+"""
+
+from ._composite import composite as composite
+from ._gaussians import (
+    PAD_OPACITY_LOGIT as PAD_OPACITY_LOGIT,
+    Gaussians as Gaussians,
+    apply_part_poses as apply_part_poses,
+    rest_part_poses as rest_part_poses,
+)
+from ._project import (
+    ALPHA_THRESHOLD as ALPHA_THRESHOLD,
+    EPS2D as EPS2D,
+    FAR_PLANE as FAR_PLANE,
+    GAUSSIAN_EXTEND as GAUSSIAN_EXTEND,
+    MAX_ALPHA as MAX_ALPHA,
+    NEAR_PLANE as NEAR_PLANE,
+    TRANSMITTANCE_THRESHOLD as TRANSMITTANCE_THRESHOLD,
+    Projected as Projected,
+    project_gaussians as project_gaussians,
+)
+from ._raster import (
+    RenderConfig as RenderConfig,
+    RenderOutput as RenderOutput,
+    bin_gaussians as bin_gaussians,
+    choose_config as choose_config,
+    render as render,
+)

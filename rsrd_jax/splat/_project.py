@@ -1,0 +1,129 @@
+"""EWA projection of 3D Gaussians to screen-space conics, with gsplat's constants.
+
+Follows gsplat's `fully_fused_projection` (classic mode): covariance Σ = R S² Rᵀ, world → camera,
+perspective Jacobian evaluated at the frustum-clamped direction, a 0.3 px² blur on the diagonal,
+conic = inverse of the blurred 2D covariance, and an axis-aligned box per Gaussian. The box uses
+gsplat's opacity-aware extent (StopThePop, arXiv 2402.00525): outside k·σ with
+k = min(3.33, √(2 ln(255·o))) every pixel has α < 1/255 and is skipped anyway, so this culls
+nothing that could contribute.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ..geometry import Camera
+from ._gaussians import Gaussians
+
+NEAR_PLANE = 0.01
+"""Gaussians with camera depth below this (metres) are culled (gsplat `near_plane`)."""
+FAR_PLANE = 1e10
+"""Gaussians with camera depth above this (metres) are culled (gsplat `far_plane`)."""
+EPS2D = 0.3
+"""Screen-space blur added to both diagonal entries of the 2D covariance, px² (gsplat `eps2d`)."""
+GAUSSIAN_EXTEND = 3.33
+"""Maximum box half-extent in standard deviations per axis (gsplat `GAUSSIAN_EXTEND`)."""
+ALPHA_THRESHOLD = 1.0 / 255.0
+"""Pixel-Gaussian pairs with α below this are skipped; opacities below it are culled."""
+MAX_ALPHA = 0.99
+"""Cap on a single Gaussian's α. 0.99 as in current gsplat (main since c5ff586b); gsplat ≤ 1.5.3
+(and so RSRD) used 0.999. Chosen so that TRANSMITTANCE_THRESHOLD = (1 − MAX_ALPHA)² as in gsplat."""
+TRANSMITTANCE_THRESHOLD = 1e-4
+"""A pixel stops when the transmittance after a Gaussian would fall to this or below; that
+Gaussian is not added (gsplat's exclusive stop)."""
+FRUSTUM_MARGIN = 0.3
+"""J is evaluated with x/z, y/z clamped to the frustum widened by this fraction of tan(half-FOV)."""
+
+
+class Projected(eqx.Module):
+    """Screen-space Gaussians of one camera (all N, invisible ones flagged)."""
+
+    xy: Float[Array, "n 2"]
+    """Projected mean (u, v) in pixels, pixel centres at +0.5."""
+    depth: Float[Array, " n"]
+    """Camera-frame z of the mean, metres."""
+    conic: Float[Array, "n 3"]
+    """(a, b, c) = entries (00, 01, 11) of the inverse blurred 2D covariance, 1/px²."""
+    opacity: Float[Array, " n"]
+    """Peak opacity (zero where invisible)."""
+    extent: Float[Array, "n 2"]
+    """Half-widths of the axis-aligned box beyond which α < 1/255, pixels (no gradient)."""
+    visible: Bool[Array, " n"]
+    """In front of the near plane, finite non-degenerate conic, opacity ≥ 1/255, box in image."""
+
+
+def quat_to_rotmat(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3 3"]:
+    """Rotation matrices of unit wxyz quaternions."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
+    """EWA-projects every Gaussian into `camera` (differentiable in means, rotations, scales,
+    opacities and the camera pose; culling decisions carry no gradient).
+
+    Returns:
+        `Projected` with N entries; culled Gaussians have `visible = False` and opacity 0.
+    """
+    intr = camera.intrinsics
+    dtype = gaussians.means.dtype
+    R_cw = camera.T_cam_world.rotation().as_matrix().astype(dtype)
+    t_cw = camera.T_cam_world.translation().astype(dtype)
+    p = gaussians.means @ R_cw.T + t_cw
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    in_depth = (z > NEAR_PLANE) & (z < FAR_PLANE)
+    z_safe = jnp.where(in_depth, z, 1.0)
+
+    # Camera-frame covariance: M = R_cw R(q) S, Σ_c = M Mᵀ.
+    R = quat_to_rotmat(gaussians.unit_quats())
+    M = jnp.einsum("ij,njk->nik", R_cw, R) * gaussians.scales()[:, None, :]
+    fx, fy, cx, cy = (v.astype(dtype) for v in (intr.fx, intr.fy, intr.cx, intr.cy))
+    W, H = intr.width, intr.height
+    tan_x = 0.5 * W / fx
+    tan_y = 0.5 * H / fy
+    xz = jnp.clip(x / z_safe, -(cx / fx + FRUSTUM_MARGIN * tan_x), (W - cx) / fx + FRUSTUM_MARGIN * tan_x)
+    yz = jnp.clip(y / z_safe, -(cy / fy + FRUSTUM_MARGIN * tan_y), (H - cy) / fy + FRUSTUM_MARGIN * tan_y)
+    # Rows of J M (2×3 each): J = [[fx/z, 0, -fx·xz/z], [0, fy/z, -fy·yz/z]].
+    JM0 = (fx / z_safe)[:, None] * (M[:, 0, :] - xz[:, None] * M[:, 2, :])
+    JM1 = (fy / z_safe)[:, None] * (M[:, 1, :] - yz[:, None] * M[:, 2, :])
+    s00 = jnp.sum(JM0 * JM0, -1) + EPS2D
+    s01 = jnp.sum(JM0 * JM1, -1)
+    s11 = jnp.sum(JM1 * JM1, -1) + EPS2D
+    det = s00 * s11 - s01 * s01
+    ok_det = det > 0
+    det_safe = jnp.where(ok_det, det, 1.0)
+    conic = jnp.stack([s11 / det_safe, -s01 / det_safe, s00 / det_safe], axis=-1)
+
+    u = fx * x / z_safe + cx
+    v = fy * y / z_safe + cy
+    opac = gaussians.opacities()
+
+    # Box (no gradient): opacity-aware extent, with a hair of slack for rounding.
+    o_sg = jax.lax.stop_gradient(opac)
+    k = jnp.sqrt(2.0 * jnp.log(jnp.maximum(o_sg * 255.0, 1.0)))
+    k = jnp.minimum(k, GAUSSIAN_EXTEND) * (1.0 + 1e-4) + 1e-4
+    ext = jax.lax.stop_gradient(
+        jnp.stack([k * jnp.sqrt(jnp.maximum(s00, 0.0)), k * jnp.sqrt(jnp.maximum(s11, 0.0))], -1)
+    )
+    u_sg, v_sg = jax.lax.stop_gradient(u), jax.lax.stop_gradient(v)
+    in_image = (
+        (u_sg + ext[:, 0] > 0) & (u_sg - ext[:, 0] < W) & (v_sg + ext[:, 1] > 0) & (v_sg - ext[:, 1] < H)
+    )
+    finite = jnp.all(jnp.isfinite(conic), -1) & jnp.isfinite(u) & jnp.isfinite(v)
+    visible = jax.lax.stop_gradient(in_depth & ok_det & finite & (o_sg >= ALPHA_THRESHOLD) & in_image)
+    return Projected(
+        xy=jnp.stack([jnp.where(visible, u, 0.0), jnp.where(visible, v, 0.0)], -1),
+        depth=jnp.where(visible, z, 0.0),
+        conic=jnp.where(visible[:, None], conic, 0.0),
+        opacity=jnp.where(visible, opac, 0.0),
+        extent=jnp.where(visible[:, None], ext, 0.0),
+        visible=visible,
+    )
