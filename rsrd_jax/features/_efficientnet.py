@@ -18,11 +18,12 @@ Each MBConv block: [1×1 expand + BN + ReLU6] → depthwise k×k + BN + ReLU6 �
 plus the identity when stride is 1 and channels match. Batch norm is folded into the preceding
 convolution at load time (inference mode, ε = 1e-3 as in the TF original).
 
-Padding is TensorFlow "SAME" (extra row/column at the bottom/right for stride 2), because the
-packaged weights come from the TF checkpoint. Measured on the three natural images that ship
-with matplotlib/scikit-learn (36 crops): mean log-probability of the true class −1.70 with
-TF SAME padding, ε = 1e-3 and TF input scaling ``(x·255 − 127)/128``; −2.38 with symmetric
-padding; −1.80 with ε = 1e-5; torch mean/std input scaling is also worse (see the tests).
+Padding is TensorFlow "SAME" (extra row/column at the bottom/right for stride 2) and inputs are
+scaled as ``(x·255 − 127)/128``, because the packaged weights come from the TF checkpoint.
+Measured on the three natural images that ship with matplotlib/scikit-learn (36 crops at 192
+and 224 px; classes 652, 698, 985): mean log-probability of the true class −1.70 (top-1 67 %)
+with TF SAME padding, ε = 1e-3 and TF scaling; −2.38 with symmetric padding; −1.80 with
+ε = 1e-5; −2.22 (top-1 36 %) with torch's ImageNet mean/std scaling.
 """
 
 from __future__ import annotations
