@@ -24,25 +24,36 @@ def _tri_lower(L: Array, b: Array) -> Array:
     return solve_triangular(L, b, lower=True)
 
 
+def _tri_inverse(L: Array) -> Array:
+    return solve_triangular(L, jnp.eye(L.shape[-1], dtype=L.dtype), lower=True)
+
+
+# Each diagonal factor L[t,t] is inverted once (a D x D triangular solve); every other block
+# operation is then a matmul, which runs about twice as fast on CPU as per-block triangular solves
+# and batches better under vmap.
+
+
 def _factor_forward(
     bands: Float[Array, "T B1 D D"], rhs: Float[Array, "T D"]
-) -> tuple[Float[Array, "T B1 D D"], Float[Array, "T D"]]:
-    """Band Cholesky factor L (same layout as ``bands``) and y = L^{-1} rhs, in one scan."""
+) -> tuple[Float[Array, "T B1 D D"], Float[Array, "T D D"], Float[Array, "T D"]]:
+    """Band Cholesky factor L (layout of ``bands``), inverses of its diagonal blocks, and
+    y = L^{-1} rhs, in one scan over block rows."""
     T, B1, D, _ = bands.shape
     B = B1 - 1
-    eye = jnp.eye(D, dtype=bands.dtype)
     if B == 0:
         L0 = jnp.linalg.cholesky(bands[:, 0])
-        y = jax.vmap(_tri_lower)(L0, rhs[..., None])[..., 0]
-        return L0[:, None], y
+        Linv = jax.vmap(_tri_inverse)(L0)
+        return L0[:, None], Linv, jnp.einsum("tij,tj->ti", Linv, rhs)
 
     # Fictitious rows before t = 0 have identity diagonal blocks, so the (zero) couplings of the
     # first B rows to them solve to zero instead of dividing by zero.
+    eye = jnp.eye(D, dtype=bands.dtype)
     L_prev0 = jnp.zeros((B, B1, D, D), bands.dtype).at[:, 0].set(eye)
+    Linv_prev0 = jnp.broadcast_to(eye, (B, D, D))
     y_prev0 = jnp.zeros((B, D), bands.dtype)
 
     def step(carry, inputs):
-        L_prev, y_prev = carry  # rows t-B..t-1 (index B-1 is row t-1)
+        L_prev, Linv_prev, y_prev = carry  # rows t-B..t-1 (index B-1 is row t-1)
         a_row, b_t = inputs
         row = [None] * B1
         # Off-diagonal blocks, leftmost column first: L[t,c] = (A[t,c] - sum L[t,m] L[c,m]^T) L[c,c]^-T
@@ -51,31 +62,31 @@ def _factor_forward(
             s = a_row[k]
             for m in range(k + 1, B1):
                 s = s - row[m] @ prev_c[m - k].T
-            row[k] = _tri_lower(prev_c[0], s.T).T
+            row[k] = s @ Linv_prev[B - k].T
         d = a_row[0]
-        for k in range(1, B1):
-            d = d - row[k] @ row[k].T
-        row[0] = jnp.linalg.cholesky(d)
         v = b_t
         for k in range(1, B1):
+            d = d - row[k] @ row[k].T
             v = v - row[k] @ y_prev[B - k]
-        y_t = _tri_lower(row[0], v[:, None])[:, 0]
+        row[0] = jnp.linalg.cholesky(d)
+        Linv_t = _tri_inverse(row[0])
+        y_t = Linv_t @ v
         L_row = jnp.stack(row)
-        L_prev = jnp.concatenate([L_prev[1:], L_row[None]], axis=0)
-        y_prev = jnp.concatenate([y_prev[1:], y_t[None]], axis=0)
-        return (L_prev, y_prev), (L_row, y_t)
+        shift = lambda buf, new: jnp.concatenate([buf[1:], new[None]], axis=0)  # noqa: E731
+        return (shift(L_prev, L_row), shift(Linv_prev, Linv_t), shift(y_prev, y_t)), (L_row, Linv_t, y_t)
 
-    _, (L, y) = jax.lax.scan(step, (L_prev0, y_prev0), (bands, rhs))
-    return L, y
+    _, (L, Linv, y) = jax.lax.scan(step, (L_prev0, Linv_prev0, y_prev0), (bands, rhs))
+    return L, Linv, y
 
 
-def _backward(L: Float[Array, "T B1 D D"], y: Float[Array, "T D"]) -> Float[Array, "T D"]:
-    """Solve L^T x = y for a band Cholesky factor L."""
+def _backward(
+    L: Float[Array, "T B1 D D"], Linv: Float[Array, "T D D"], y: Float[Array, "T D"]
+) -> Float[Array, "T D"]:
+    """Solve L^T x = y for a band Cholesky factor L (with its inverted diagonal blocks)."""
     T, B1, D, _ = L.shape
     B = B1 - 1
     if B == 0:
-        solve_t = lambda Lt, yt: solve_triangular(Lt, yt, lower=True, trans="T")  # noqa: E731
-        return jax.vmap(solve_t)(L[:, 0], y)
+        return jnp.einsum("tji,tj->ti", Linv, y)
     # below[t, k-1] = L[t+k, t] (zero past the end): the blocks of column t under the diagonal.
     below = jnp.stack(
         [jnp.concatenate([L[k:, k], jnp.zeros((k, D, D), L.dtype)], axis=0) for k in range(1, B1)],
@@ -83,12 +94,12 @@ def _backward(L: Float[Array, "T B1 D D"], y: Float[Array, "T D"]) -> Float[Arra
     )
 
     def step(x_next, inputs):  # x_next[k-1] = x_{t+k}
-        L_tt, y_t, below_t = inputs
+        Linv_t, y_t, below_t = inputs
         v = y_t - jnp.einsum("kij,ki->j", below_t, x_next)
-        x_t = solve_triangular(L_tt, v, lower=True, trans="T")
+        x_t = Linv_t.T @ v
         return jnp.concatenate([x_t[None], x_next[:-1]], axis=0), x_t
 
-    _, x = jax.lax.scan(step, jnp.zeros((B, D), L.dtype), (L[:, 0], y, below), reverse=True)
+    _, x = jax.lax.scan(step, jnp.zeros((B, D), L.dtype), (Linv, y, below), reverse=True)
     return x
 
 
@@ -109,18 +120,19 @@ def banded_cholesky_solve(L: Float[Array, "T B1 D D"], rhs: Float[Array, "T D"])
     """Solve ``A x = rhs`` given the band Cholesky factor ``L`` of ``A``."""
     T, B1, D, _ = L.shape
     B = B1 - 1
+    Linv = jax.vmap(_tri_inverse)(L[:, 0])
     if B == 0:
-        y = jax.vmap(_tri_lower)(L[:, 0], rhs[..., None])[..., 0]
+        y = jnp.einsum("tij,tj->ti", Linv, rhs)
     else:
 
         def fwd(y_prev, inputs):
-            L_row, b_t = inputs
+            L_row, Linv_t, b_t = inputs
             v = b_t - jnp.einsum("kij,kj->i", L_row[:0:-1], y_prev)
-            y_t = _tri_lower(L_row[0], v[:, None])[:, 0]
+            y_t = Linv_t @ v
             return jnp.concatenate([y_prev[1:], y_t[None]], axis=0), y_t
 
-        _, y = jax.lax.scan(fwd, jnp.zeros((B, D), L.dtype), (L, rhs))
-    return _backward(L, y)
+        _, y = jax.lax.scan(fwd, jnp.zeros((B, D), L.dtype), (L, Linv, rhs))
+    return _backward(L, Linv, y)
 
 
 def banded_solve(bands: Float[Array, "T B1 D D"], rhs: Float[Array, "T D"]) -> Float[Array, "T D"]:
@@ -133,8 +145,8 @@ def banded_solve(bands: Float[Array, "T B1 D D"], rhs: Float[Array, "T D"]) -> F
     Returns:
         x, shape (T, D); NaN where ``A`` is not positive definite.
     """
-    L, y = _factor_forward(bands, rhs)
-    return _backward(L, y)
+    L, Linv, y = _factor_forward(bands, rhs)
+    return _backward(L, Linv, y)
 
 
 def banded_matvec(bands: Float[Array, "T B1 D D"], x: Float[Array, "T D"]) -> Float[Array, "T D"]:

@@ -337,11 +337,15 @@ class LMSolution(eqx.Module):
 
 
 class _State(eqx.Module):
-    x: Array
-    lin: _Linearisation
+    x: Array  # current (accepted) iterate
+    lin: _Linearisation  # at x
+    x_trial: Array  # proposed next iterate, evaluated at the start of the next pass
+    delta: Array  # tangent step from x to x_trial
+    predicted: Array  # predicted cost decrease of the step
     lambd: Array
-    iteration: Array
+    iteration: Array  # trial steps evaluated so far
     accepted: Array
+    first: Array  # the pass that evaluates x0
     done: Array
     result: LMResult
     history: Array
@@ -356,74 +360,98 @@ def _damping_diag(config: SolverConfig, bands: Array) -> Array:
     raise ValueError(f"SolverConfig.damping must be 'identity' or 'marquardt', got {config.damping!r}")
 
 
-def _lm_step(problem: BandedProblem, data, params, config: SolverConfig, s: _State) -> _State:
+def _lm_pass(problem: BandedProblem, data, params, config: SolverConfig, s: _State) -> _State:
+    """One pass: linearise the pending trial point (x0 on the first pass), accept or reject it,
+    test termination, and solve the damped normal equations for the next trial point. Putting
+    the only linearisation at the top keeps one copy of the Jacobian code in the compiled loop."""
     tr, term = config.trust_region, config.termination
-    lin = s.lin
-    S = _damping_diag(config, lin.bands)
-    damped = lin.bands.at[:, 0].add(jax.vmap(jnp.diag)(s.lambd * S))
-    delta = banded_solve(damped, -lin.grad)
-    x_new = problem._retract(s.x, delta)
-    lin_new = _linearise(problem, x_new, data, params)
+    lin_t = _linearise(problem, s.x_trial, data, params)
 
-    predicted = -jnp.sum(lin.grad * delta) + s.lambd * jnp.sum(S * delta**2)
-    actual = lin.cost - lin_new.cost
-    rho = actual / predicted
-    step_ok = lin_new.finite & jnp.all(jnp.isfinite(delta))
-    accept = step_ok & (rho >= tr.step_quality_min)
+    actual = s.lin.cost - lin_t.cost
+    rho = actual / s.predicted
+    step_ok = lin_t.finite & jnp.all(jnp.isfinite(s.delta))
+    accept = jnp.where(s.first, lin_t.finite, step_ok & (rho >= tr.step_quality_min))
     # A step that changes nothing (cost equal to the last bit) has converged, not failed.
-    no_change = step_ok & (actual == 0)
+    useful = ~s.first & (accept | (step_ok & (actual == 0)))
 
-    x = jnp.where(accept, x_new, s.x)
-    lin_out = jax.tree.map(lambda a, b: jnp.where(accept, a, b), lin_new, lin)
+    x = jnp.where(accept, s.x_trial, s.x)
+    lin = jax.tree.map(lambda a, b: jnp.where(accept, a, b), lin_t, s.lin)
     lambd = jnp.where(
-        accept,
-        jnp.maximum(s.lambd / tr.lambda_factor, tr.lambda_min),
-        jnp.minimum(s.lambd * tr.lambda_factor, tr.lambda_max),
+        s.first,
+        s.lambd,
+        jnp.where(
+            accept,
+            jnp.maximum(s.lambd / tr.lambda_factor, tr.lambda_min),
+            jnp.minimum(s.lambd * tr.lambda_factor, tr.lambda_max),
+        ),
     )
-    useful = accept | no_change
-    rel_cost = jnp.abs(actual) / jnp.maximum(lin.cost, jnp.finfo(lin.cost.dtype).tiny)
+    rel_cost = jnp.abs(actual) / jnp.maximum(s.lin.cost, jnp.finfo(x.dtype).tiny)
     conv_cost = useful & (rel_cost < term.cost_tolerance)
     conv_param = useful & (
-        jnp.linalg.norm(delta) < term.parameter_tolerance * (jnp.linalg.norm(s.x) + term.parameter_tolerance)
+        jnp.linalg.norm(s.delta) < term.parameter_tolerance * (jnp.linalg.norm(s.x) + term.parameter_tolerance)
     )
-    conv_grad = jnp.max(jnp.abs(lin_out.grad)) < term.gradient_tolerance
+    conv_grad = lin.finite & (jnp.max(jnp.abs(lin.grad)) < term.gradient_tolerance)
     converged = conv_cost | conv_param | conv_grad
-    stalled = ~accept & (s.lambd >= tr.lambda_max)
-    iteration = s.iteration + 1
+    nonfinite = s.first & ~lin_t.finite
+    stalled = ~s.first & ~accept & (s.lambd >= tr.lambda_max)
+    iteration = s.iteration + jnp.where(s.first, 0, 1).astype(jnp.int32)
     out_of_steps = iteration >= term.max_iterations
-
     result = LMResult.where(
-        converged,
-        LMResult.converged,
-        LMResult.where(stalled, LMResult.stalled, LMResult.max_iterations),
+        nonfinite,
+        LMResult.nonfinite,
+        LMResult.where(
+            converged,
+            LMResult.converged,
+            LMResult.where(stalled, LMResult.stalled, LMResult.max_iterations),
+        ),
     )
-    done = converged | stalled | out_of_steps
-    history = s.history.at[iteration].set(lin_out.cost)
-    return _State(x, lin_out, lambd, iteration, s.accepted + accept.astype(jnp.int32), done, result, history)
+    done = nonfinite | converged | stalled | out_of_steps
+    history = s.history.at[iteration].set(lin.cost)
+
+    # Next trial: (J^T J + lambda S) delta = -J^T r. Its predicted decrease of sum r^2 is
+    # -(2 g.delta + delta^T J^T J delta) = -g.delta + lambda delta^T S delta.
+    S = _damping_diag(config, lin.bands)
+    damped = lin.bands.at[:, 0].add(jax.vmap(jnp.diag)(lambd * S))
+    delta = banded_solve(damped, -lin.grad)
+    predicted = -jnp.sum(lin.grad * delta) + lambd * jnp.sum(S * delta**2)
+    x_trial = problem._retract(x, delta)
+    return _State(
+        x=x,
+        lin=lin,
+        x_trial=x_trial,
+        delta=delta,
+        predicted=predicted,
+        lambd=lambd,
+        iteration=iteration,
+        accepted=s.accepted + (accept & ~s.first).astype(jnp.int32),
+        first=jnp.array(False),
+        done=done,
+        result=result,
+        history=history,
+    )
 
 
 def _solve_impl(problem: BandedProblem, x0: Array, data: tuple, params: Any, config: SolverConfig) -> LMSolution:
     term = config.termination
-    lin0 = _linearise(problem, x0, data, params)
-    conv0 = jnp.max(jnp.abs(lin0.grad)) < term.gradient_tolerance
-    result0 = LMResult.where(
-        ~lin0.finite,
-        LMResult.nonfinite,
-        LMResult.where(conv0, LMResult.converged, LMResult.max_iterations),
-    )
-    done0 = ~lin0.finite | conv0 | (term.max_iterations <= 0)
-    history0 = jnp.full((term.max_iterations + 1,), jnp.nan, x0.dtype).at[0].set(lin0.cost)
+    T, P = x0.shape
+    D = problem._tangent_dim(P)
+    lin_shape = jax.eval_shape(lambda: _linearise(problem, x0, data, params))
+    lin0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), lin_shape)
     s0 = _State(
-        x0,
-        lin0,
-        jnp.broadcast_to(config.trust_region.lambda_initial, ()).astype(x0.dtype),
-        jnp.zeros((), jnp.int32),
-        jnp.zeros((), jnp.int32),
-        done0,
-        result0,
-        history0,
+        x=x0,
+        lin=lin0,
+        x_trial=x0,
+        delta=jnp.zeros((T, D), x0.dtype),
+        predicted=jnp.ones((), x0.dtype),
+        lambd=jnp.broadcast_to(config.trust_region.lambda_initial, ()).astype(x0.dtype),
+        iteration=jnp.zeros((), jnp.int32),
+        accepted=jnp.zeros((), jnp.int32),
+        first=jnp.array(True),
+        done=jnp.array(False),
+        result=LMResult.max_iterations,
+        history=jnp.zeros((term.max_iterations + 1,), x0.dtype),
     )
-    step = lambda s: _lm_step(problem, data, params, config, s)  # noqa: E731
+    step = lambda s: _lm_pass(problem, data, params, config, s)  # noqa: E731
 
     if config.loop == "while":
         s = jax.lax.while_loop(lambda s: ~s.done, step, s0)
@@ -432,7 +460,7 @@ def _solve_impl(problem: BandedProblem, x0: Array, data: tuple, params: Any, con
         def body(s, _):
             return jax.lax.cond(s.done, lambda s: s, step, s), None
 
-        s, _ = jax.lax.scan(body, s0, None, length=term.max_iterations)
+        s, _ = jax.lax.scan(body, s0, None, length=term.max_iterations + 1)
     else:
         raise ValueError(f"SolverConfig.loop must be 'while' or 'scan', got {config.loop!r}")
 
@@ -449,9 +477,7 @@ def _solve_impl(problem: BandedProblem, x0: Array, data: tuple, params: Any, con
         lambd=s.lambd,
     )
     if config.throw:
-        sol = eqx.tree_at(
-            lambda z: z.x, sol, sol.result.error_if(sol.x, sol.result != LMResult.converged)
-        )
+        sol = eqx.tree_at(lambda z: z.x, sol, sol.result.error_if(sol.x, sol.result != LMResult.converged))
     return sol
 
 
