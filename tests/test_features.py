@@ -32,6 +32,7 @@ from rsrd_jax.features import (
     fit_pca,
     load_efficientnet_lite0,
     load_legacy_torch_state_dict,
+    mask_to_grid,
 )
 
 MILITARY_UNIFORM = 652  # ImageNet-1k class index of "military uniform"
@@ -361,6 +362,19 @@ def test_extractor_rejects_bad_images(extractor):
         extractor(np.zeros((64, 64, 3), np.int32))
 
 
+def test_mask_to_grid_matches_block_average(rng):
+    mask = rng.random((2, 3, 16, 24)) < 0.5
+    grid = mask_to_grid(mask, (4, 6))
+    np.testing.assert_array_equal(grid, mask.reshape(2, 3, 4, 4, 6, 4).mean((3, 5)) >= 0.5)
+    # Non-integer ratio: 10 rows → 3 cells of 10/3 rows; rows 0–4 masked covers cell 1 half.
+    half = np.zeros((10, 10), bool)
+    half[:5] = True
+    np.testing.assert_array_equal(mask_to_grid(half, (3, 3))[:, 0], [True, True, False])
+    np.testing.assert_array_equal(mask_to_grid(half, (3, 3), 0.6)[:, 0], [True, False, False])
+    with pytest.raises(ValueError, match="grid_shape"):
+        mask_to_grid(half, (20, 3))
+
+
 # ----------------------------------------------------------------------------------------------
 # ONNX ViT extractor
 # ----------------------------------------------------------------------------------------------
@@ -368,7 +382,9 @@ def test_extractor_rejects_bad_images(extractor):
 PATCH, DIM = 7, 8
 
 
-def _build_vit(path: Path, static_batch: bool = False, grid_output: bool = False) -> None:
+def _build_vit(
+    path: Path, static_batch: bool = False, grid_output: bool = False, fixed_hw=("H", "W")
+) -> None:
     """A tiny ViT-like model: patch-embedding conv, tokens, a mean 'CLS' and a max 'register'
     token prepended, then a per-token tanh(x W + b) layer. Output N × (2 + h·w) × D."""
     rng = np.random.default_rng(0)
@@ -396,7 +412,7 @@ def _build_vit(path: Path, static_batch: bool = False, grid_output: bool = False
     graph = helper.make_graph(
         nodes,
         "tiny_vit",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [batch, 3, "H", "W"])],
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [batch, 3, *fixed_hw])],
         [
             helper.make_tensor_value_info(
                 out_name,
@@ -447,6 +463,19 @@ def test_onnx_resize_static_batch_and_grid_output(tmp_path, rng):
     # Batched with a batch-1 model = each image alone.
     np.testing.assert_allclose(fmap.features[2], ext(imgs[2]).features, atol=1e-6)
 
+    # A model with a fixed 21×28 input: input size taken from the model, prefix count inferred.
+    fpath = tmp_path / "fixed.onnx"
+    _build_vit(fpath, fixed_hw=(21, 28))
+    fext = OnnxFeatureExtractor(OnnxConfig(str(fpath), patch_size=PATCH))
+    assert fext.config.input_size == (21, 28) and fext.output_shape(40, 60) == (3, 4)
+    f = fext(imgs)
+    assert f.features.shape == (3, 3, 4, DIM) and f.stride == (40 / 3, 60 / 4)
+    small = np.stack([cv2.resize(im, (28, 21), interpolation=cv2.INTER_AREA) for im in imgs])
+    direct = _direct(fpath, small, fext.config.mean, fext.config.std)
+    np.testing.assert_allclose(f.features, direct[:, 2:].reshape(3, 3, 4, DIM), atol=1e-5)
+    with pytest.raises(ValueError, match="fixed to 21×28"):
+        OnnxFeatureExtractor(OnnxConfig(str(fpath), patch_size=PATCH, input_size=(14, 14)))
+
     gpath = tmp_path / "grid.onnx"
     _build_vit(gpath, grid_output=True)
     gext = OnnxFeatureExtractor(OnnxConfig(str(gpath), patch_size=PATCH))
@@ -469,6 +498,9 @@ def test_onnx_errors(tmp_path, rng):
         ext(rng.integers(0, 256, (35, 49, 3), dtype=np.uint8))
     with pytest.raises(ValueError, match="input_size"):
         OnnxConfig(str(path), patch_size=PATCH, input_size=(30, 42))
+    wrong_patch = OnnxFeatureExtractor(OnnxConfig(str(path), patch_size=5))
+    with pytest.raises(ValueError, match="patch_size=5"):
+        wrong_patch(rng.integers(0, 256, (35, 50, 3), dtype=np.uint8))
 
 
 # ----------------------------------------------------------------------------------------------

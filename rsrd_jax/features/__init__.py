@@ -20,6 +20,7 @@ from ._extractor import (
     FeatureExtractor,
     FeatureMap,
     as_float_images,
+    mask_to_grid,
 )
 from ._onnx import OnnxConfig, OnnxFeatureExtractor
 from ._pca import PCA, PCA_ARRAY_KEYS, fit_pca
@@ -43,4 +44,5 @@ __all__ = [
     "fit_pca",
     "load_efficientnet_lite0",
     "load_legacy_torch_state_dict",
+    "mask_to_grid",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import abc
 from pathlib import Path
 
+import cv2
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -223,3 +224,28 @@ def _efficientnet_logits(
 ) -> Float[Array, "n 1000"]:
     x = (x - jnp.asarray(config.mean, x.dtype)) / jnp.asarray(config.std, x.dtype)
     return net.logits(x)
+
+
+def mask_to_grid(mask, grid_shape: tuple[int, int], min_fraction: float = 0.5) -> np.ndarray:
+    """Downsamples a pixel mask to a feature grid by area coverage (host-side, numpy).
+
+    Args:
+      mask: ``*batch × H × W`` boolean (or 0/1) pixel mask.
+      grid_shape: (H', W') of the feature grid (e.g. ``extractor.output_shape(H, W)``); cell
+        (i, j) covers pixels ``[i·H/H', (i+1)·H/H') × [j·W/W', (j+1)·W/W')``, as ``FeatureMap``.
+      min_fraction: a cell is True when at least this fraction of its area is masked.
+
+    Returns:
+      ``*batch × H' × W'`` boolean array.
+    """
+    m = np.asarray(mask)
+    if m.ndim < 2:
+        raise ValueError(f"mask: expected *batch×H×W, got shape {m.shape}")
+    h, w = m.shape[-2:]
+    gh, gw = grid_shape
+    if not (1 <= gh <= h and 1 <= gw <= w):
+        raise ValueError(f"grid_shape={grid_shape!r}: must be between 1×1 and the mask's {h}×{w}")
+    flat = m.reshape((-1, h, w)).astype(np.float32)
+    # INTER_AREA averages exactly over the (fractional) source area of each output cell.
+    cover = np.stack([cv2.resize(f, (gw, gh), interpolation=cv2.INTER_AREA) for f in flat])
+    return (cover >= min_fraction - 1e-6).reshape(m.shape[:-2] + (gh, gw))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -20,15 +21,15 @@ class OnnxConfig(eqx.Module):
     patch_size: int = eqx.field(static=True, default=14)
     """ViT patch size in pixels (DINOv2: 14)."""
     input_size: tuple[int, int] | None = eqx.field(static=True, default=None)
-    """(H, W) the image is resized to, multiples of ``patch_size``; None: the image size rounded
-    to the nearest multiple of ``patch_size`` (needs a model exported with dynamic H, W)."""
+    """(H, W) the image is resized to, multiples of ``patch_size``; None: the model's fixed input
+    size if it has one, else the image size rounded to the nearest multiple of ``patch_size``."""
     mean: tuple[float, float, float] = eqx.field(static=True, default=(0.485, 0.456, 0.406))
     """Per-channel mean subtracted from [0, 1] RGB (DINOv2: ImageNet mean)."""
     std: tuple[float, float, float] = eqx.field(static=True, default=(0.229, 0.224, 0.225))
     """Per-channel divisor after the mean (DINOv2: ImageNet std)."""
-    num_prefix_tokens: int = eqx.field(static=True, default=1)
+    num_prefix_tokens: int | None = eqx.field(static=True, default=None)
     """Tokens before the patch tokens in an N×T×D output, dropped (CLS = 1; DINOv2 with
-    registers = 5). Ignored when the model already outputs an N×D×h×w grid."""
+    registers = 5); None: inferred as T − h·w. Ignored for models that output an N×D×h×w grid."""
     output_name: str | None = eqx.field(static=True, default=None)
     """Which model output holds the tokens; None: the first output."""
 
@@ -43,7 +44,7 @@ class OnnxConfig(eqx.Module):
                 f"OnnxConfig.input_size={self.input_size!r} must be two positive multiples of "
                 f"patch_size={self.patch_size}"
             )
-        if self.num_prefix_tokens < 0:
+        if self.num_prefix_tokens is not None and self.num_prefix_tokens < 0:
             raise ValueError(f"OnnxConfig.num_prefix_tokens={self.num_prefix_tokens} must be ≥ 0")
         if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
             raise ValueError("OnnxConfig.mean/std must be 3 values, std > 0")
@@ -84,6 +85,19 @@ class OnnxFeatureExtractor(FeatureExtractor):
                 f"{path}: expected one N×3×H×W image input, got "
                 f"{[(i.name, i.shape) for i in inputs]}"
             )
+        fixed = tuple(inputs[0].shape[2:])
+        if all(isinstance(d, int) and d > 0 for d in fixed):
+            if config.input_size is not None and tuple(config.input_size) != fixed:
+                raise ValueError(
+                    f"{path}: the model's input is fixed to {fixed[0]}×{fixed[1]} but "
+                    f"OnnxConfig.input_size={config.input_size!r}"
+                )
+            if any(d % config.patch_size for d in fixed):
+                raise ValueError(
+                    f"{path}: fixed input {fixed[0]}×{fixed[1]} is not a multiple of "
+                    f"OnnxConfig.patch_size={config.patch_size}"
+                )
+            config = dataclasses.replace(config, input_size=fixed)
         names = [o.name for o in session.get_outputs()]
         if config.output_name is not None and config.output_name not in names:
             raise ValueError(
@@ -166,7 +180,14 @@ class OnnxFeatureExtractor(FeatureExtractor):
                 f"{self.config.path}: expected N×T×D tokens or an N×D×h×w grid, got {tokens.shape}"
             )
         k = self.config.num_prefix_tokens
-        if tokens.shape[1] - k != gh * gw:
+        if k is None:
+            k = tokens.shape[1] - gh * gw
+            if k < 0:
+                raise ValueError(
+                    f"{self.config.path}: {tokens.shape[1]} tokens are fewer than the {gh}×{gw} "
+                    f"patch grid (check OnnxConfig.patch_size={self.config.patch_size})"
+                )
+        elif tokens.shape[1] - k != gh * gw:
             raise ValueError(
                 f"{self.config.path}: {tokens.shape[1]} tokens minus num_prefix_tokens={k} is "
                 f"{tokens.shape[1] - k}, but a {gh}×{gw} patch grid (patch_size="
