@@ -1,0 +1,25 @@
+"""Part meshes (alpha shapes of Gaussian centres) and antipodal parallel-jaw grasps.
+
+Owns: turning a part's point set into a closed mesh (`build_part_mesh`) and sampling,
+scoring and augmenting antipodal grasps on it (`sample_antipodal_grasps`), all in the part
+frame. Does not own: which part to grasp (`rsrd_jax.hands`), robot reachability or collision
+(`rsrd_jax.plan`).
+"""
+
+from ._antipodal import GraspConfig as GraspConfig
+from ._antipodal import GraspResult as GraspResult
+from ._antipodal import PartGrasps as PartGrasps
+from ._antipodal import sample_antipodal_grasps as sample_antipodal_grasps
+from ._mesh import MeshConfig as MeshConfig
+from ._mesh import PartMesh as PartMesh
+from ._mesh import build_part_mesh as build_part_mesh
+
+__all__ = [
+    "GraspConfig",
+    "GraspResult",
+    "MeshConfig",
+    "PartGrasps",
+    "PartMesh",
+    "build_part_mesh",
+    "sample_antipodal_grasps",
+]

@@ -1,0 +1,351 @@
+"""Antipodal parallel-jaw grasps on a closed part mesh (Dex-Net style sampling, RSRD-style
+augmentation), in JAX.
+
+Grasp frame (what `PartGrasps.T_part_grasp` holds, and what the planner tracks as the TCP
+target): origin at the grasp centre (midpoint between the two contacts, shifted along x by the
+augmentation), **x = grasp axis** = finger travel axis (from contact 1 to contact 2 for the
+unflipped pose), **z = approach axis**: the gripper moves along +z to reach the part (fingertips
+point along +z; YuMi's TCP frame has z out of the flange), y = z × x.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from ._mesh import PartMesh
+
+
+class GraspConfig(eqx.Module):
+    """Antipodal grasp sampling and augmentation."""
+
+    num_samples: int = 1000
+    """Surface points sampled (area-weighted) as first contacts (RSRD: 1000)."""
+    num_grasps: int = 10
+    """Base grasps kept, best first by score. 10 as in RSRD's code (it keeps the first 10), so
+    that 10 × 2 signs × 8 rolls × 3 shifts = the paper's 480 candidates per part; 20 gives 960."""
+    max_width: float = 0.05
+    """Largest contact separation in metres (YuMi jaw: 2 × 25 mm = 50 mm; RSRD samples ≤ 40 mm)."""
+    min_width: float = 0.002
+    """Smallest contact separation in metres (Dex-Net `min_contact_dist` 2.5 mm)."""
+    friction_angle_deg: float = 45.0
+    """Both contact normals must lie within this angle of the grasp axis (RSRD 45°, i.e.
+    friction coefficient 1; Dex-Net atan(0.5) = 26.6°)."""
+    min_separation: float = 0.003
+    """Non-maximum suppression: a grasp is dropped when both of its contacts lie within this
+    distance (metres) of the contacts of a better kept grasp."""
+    antipodal_weight: float = 1.0
+    """Score weight of antipodality: mean cosine between the normals and the axis, rescaled so
+    that the friction-cone edge is 0 and perfect alignment 1."""
+    centre_weight: float = 0.5
+    """Score weight of centredness: 1 at the mesh centroid, 0 at the farthest vertex."""
+    num_rolls: int = 8
+    """Augmentation: distinct rotations about the grasp axis, 2πk/num_rolls."""
+    shifts: tuple[float, ...] = (-0.005, 0.0, 0.005)
+    """Augmentation: offsets of the grasp centre along the grasp axis (metres; RSRD ±5 mm)."""
+    approach_reference: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    """Part-frame direction the unrolled approach axis z is taken closest to (default: from
+    above, moving down); rolls then cover the other approach directions."""
+    ray_batch: int = 256
+    """Rays per chunk in the ray–triangle tests (bounds memory to ray_batch × faces)."""
+
+
+class GraspResult(eqx.Enumeration):
+    """Outcome of grasp sampling on one part."""
+
+    success = "at least one antipodal grasp was found"
+    no_opposite_surface = "no ray along an inward normal hit the opposite surface (open or degenerate mesh)"
+    width_out_of_range = "every opposite surface lies outside [min_width, max_width]: the part does not fit the gripper"
+    outside_friction_cone = "no contact pair within the width limits has both normals inside the friction cone"
+
+
+class PartGrasps(eqx.Module):
+    """Augmented grasps of one part, fixed size n = num_grasps × 2 × num_rolls × len(shifts).
+
+    Index order is (base grasp, axis sign, roll, shift), flattened. Rows whose base grasp was not
+    found are padding (`valid` False, score -inf).
+    """
+
+    T_part_grasp: Float[Array, "n 7"]
+    """Grasp (TCP target) poses in the part frame, wxyz_xyz."""
+    width: Float[Array, " n"]
+    """Contact separation, metres."""
+    score: Float[Array, " n"]
+    """Quality of the base grasp (higher is better; -inf for padding)."""
+    valid: Bool[Array, " n"]
+    """Row holds a real grasp."""
+    base_index: Int[Array, " n"]
+    """Index of the base grasp the row was augmented from."""
+    contacts: Float[Array, "g 2 3"]
+    """Contact points of the base grasps, part frame, metres."""
+    base_valid: Bool[Array, " g"]
+    """Base grasp found."""
+    result: GraspResult
+    """Why there are no grasps, or success."""
+    num_hit: Int[Array, ""]
+    """Samples whose inward ray hit the opposite surface."""
+    num_width_ok: Int[Array, ""]
+    """... of which the width is within [min_width, max_width]."""
+    num_antipodal: Int[Array, ""]
+    """... of which both normals are inside the friction cone (candidates before NMS)."""
+
+    @property
+    def poses(self) -> jaxlie.SE3:
+        return jaxlie.SE3(self.T_part_grasp)
+
+
+def _ray_triangle(
+    origin: Float[Array, "r 3"],
+    direction: Float[Array, "r 3"],
+    tri: Float[Array, "f 3 3"],
+    exclude: Int[Array, " r"],
+) -> tuple[Float[Array, " r"], Int[Array, " r"]]:
+    """Nearest forward hit of each ray with a triangle; returns (t, face), t = inf on a miss.
+    Face `exclude[i]` (the ray's own face) is skipped.
+
+    Plane intersection t = (v0 - o)·n / (d·n) with n = e1 × e2, then barycentrics of the hit
+    point w = o + t d - v0 as u = w·(e2 × n)/|n|², v = w·(n × e1)/|n|² (dual basis of e1, e2 in
+    the plane), all linear per face.
+    """
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    n = jnp.cross(e1, e2)
+    nn = jnp.sum(n * n, axis=-1)
+    good = nn > 1e-20  # degenerate (padding) faces never hit
+    inv_nn = jnp.where(good, 1.0 / jnp.where(good, nn, 1.0), 0.0)[:, None]
+    a = jnp.cross(e2, n) * inv_nn
+    b = jnp.cross(n, e1) * inv_nn
+    denom = direction @ n.T  # r f
+    ok = good[None] & (jnp.abs(denom) > 1e-12 * jnp.sqrt(nn)[None])
+    num = jnp.sum(v0 * n, axis=-1)[None] - origin @ n.T
+    t = num / jnp.where(ok, denom, 1.0)
+    # w·a = (o - v0)·a + t d·a
+    u = (origin @ a.T - jnp.sum(v0 * a, axis=-1)[None]) + t * (direction @ a.T)
+    v = (origin @ b.T - jnp.sum(v0 * b, axis=-1)[None]) + t * (direction @ b.T)
+    eps = 1e-6
+    hit = ok & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps) & (t > 1e-7)
+    hit &= jnp.arange(tri.shape[0])[None] != exclude[:, None]
+    t = jnp.where(hit, t, jnp.inf)
+    face = jnp.argmin(t, axis=-1)
+    return jnp.min(t, axis=-1), face
+
+
+def _frames(
+    axis: Float[Array, "g 3"], reference: Float[Array, "3"]
+) -> Float[Array, "g 3 3"]:
+    """Rotation matrices with x = axis and z the unit vector closest to `reference` that is
+    orthogonal to x (falling back to part-frame y, then x, when the axis is parallel to it)."""
+    def ortho(ref):
+        z = ref[None] - jnp.sum(ref[None] * axis, -1, keepdims=True) * axis
+        return z, jnp.linalg.norm(z, axis=-1, keepdims=True)
+
+    z, nz = ortho(reference)
+    z1, nz1 = ortho(jnp.array([0.0, 1.0, 0.0]))
+    z2, nz2 = ortho(jnp.array([1.0, 0.0, 0.0]))
+    z = jnp.where(nz > 0.1, z / jnp.maximum(nz, 1e-12), jnp.where(nz1 > 0.1, z1 / jnp.maximum(nz1, 1e-12), z2 / jnp.maximum(nz2, 1e-12)))
+    y = jnp.cross(z, axis)
+    return jnp.stack([axis, y, z], axis=-1)
+
+
+def _nms(
+    p1: Float[Array, "s 3"], p2: Float[Array, "s 3"], order: Int[Array, " s"], ok: Bool[Array, " s"],
+    num_keep: int, min_sep: Float[Array, ""]
+) -> Int[Array, " g"]:
+    """Greedy non-maximum suppression over candidates in `order`; returns up to num_keep
+    candidate indices (-1 padding). Duplicates: both endpoints within min_sep (either pairing)."""
+    far = jnp.full((num_keep, 3), jnp.inf)
+
+    def body(i, carry):
+        kept, k1, k2, count = carry
+        j = order[i]
+        a, b = p1[j], p2[j]
+        d_same = jnp.maximum(jnp.linalg.norm(k1 - a, axis=-1), jnp.linalg.norm(k2 - b, axis=-1))
+        d_swap = jnp.maximum(jnp.linalg.norm(k1 - b, axis=-1), jnp.linalg.norm(k2 - a, axis=-1))
+        dup = jnp.any(jnp.minimum(d_same, d_swap) < min_sep)
+        take = ok[j] & ~dup & (count < num_keep)
+        slot = jnp.minimum(count, num_keep - 1)
+        kept = jnp.where(take, kept.at[slot].set(j), kept)
+        k1 = jnp.where(take, k1.at[slot].set(a), k1)
+        k2 = jnp.where(take, k2.at[slot].set(b), k2)
+        return kept, k1, k2, count + take.astype(jnp.int32)
+
+    init = (jnp.full((num_keep,), -1, jnp.int32), far, far, jnp.array(0, jnp.int32))
+    kept, *_ = jax.lax.fori_loop(0, order.shape[0], body, init)
+    return kept
+
+
+class _Params(eqx.Module):
+    """The float options of GraspConfig as arrays, so that changing them does not recompile."""
+
+    max_width: Float[Array, ""]
+    min_width: Float[Array, ""]
+    cos_cone: Float[Array, ""]
+    min_separation: Float[Array, ""]
+    antipodal_weight: Float[Array, ""]
+    centre_weight: Float[Array, ""]
+    shifts: Float[Array, " s"]
+    approach_reference: Float[Array, "3"]
+
+    @staticmethod
+    def of(cfg: GraspConfig) -> "_Params":
+        f = lambda x: jnp.asarray(x, jnp.float32)
+        return _Params(
+            f(cfg.max_width), f(cfg.min_width), f(math.cos(math.radians(cfg.friction_angle_deg))),
+            f(cfg.min_separation), f(cfg.antipodal_weight), f(cfg.centre_weight), f(cfg.shifts),
+            f(cfg.approach_reference),
+        )
+
+
+def _sample_impl(
+    tri: Float[Array, "f 3 3"],
+    centroid: Float[Array, "3"],
+    radius: Float[Array, ""],
+    key: PRNGKeyArray,
+    prm: _Params,
+    num_samples: int,
+    num_grasps: int,
+    num_rolls: int,
+    ray_batch: int,
+) -> PartGrasps:
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    cross = jnp.cross(e1, e2)
+    area = 0.5 * jnp.linalg.norm(cross, axis=-1)
+    normal = cross / jnp.maximum(2.0 * area, 1e-30)[:, None]
+
+    k_face, k_bary = jax.random.split(key)
+    face = jax.random.choice(k_face, tri.shape[0], (num_samples,), p=area / jnp.sum(area))
+    r = jax.random.uniform(k_bary, (num_samples, 2))
+    s = jnp.sqrt(r[:, 0])
+    w = jnp.stack([1.0 - s, s * (1.0 - r[:, 1]), s * r[:, 1]], axis=-1)
+    p1 = jnp.einsum("sk,skd->sd", w, tri[face])
+    n1 = normal[face]
+    d = -n1  # ray along the inward normal
+
+    def cast(args):
+        o, dd, ex = args
+        return _ray_triangle(o, dd, tri, ex)
+
+    nb = max(1, math.ceil(num_samples / ray_batch))
+    pad = nb * ray_batch - num_samples
+    chunk = lambda x: jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)).reshape(nb, ray_batch, *x.shape[1:])
+    t, hit_face = jax.lax.map(cast, (chunk(p1), chunk(d), chunk(face.astype(jnp.int32))))
+    t, hit_face = t.reshape(-1)[: num_samples], hit_face.reshape(-1)[: num_samples]
+
+    hit = jnp.isfinite(t)
+    width = jnp.where(hit, t, 0.0)
+    p2 = p1 + width[:, None] * d
+    n2 = normal[hit_face]
+    # Contact 1 pushes along +d (its inward normal is -n1 = d); contact 2's outward normal
+    # should point along +d too. Signed cosines: a ray that leaves through an inward-facing
+    # face (bad orientation) is rejected.
+    cos1 = jnp.sum(-n1 * d, axis=-1)
+    cos2 = jnp.sum(n2 * d, axis=-1)
+    width_ok = hit & (width >= prm.min_width) & (width <= prm.max_width)
+    cos_cone = prm.cos_cone
+    antipodal = width_ok & (cos1 >= cos_cone) & (cos2 >= cos_cone)
+
+    mid = 0.5 * (p1 + p2)
+    anti = (0.5 * (cos1 + cos2) - cos_cone) / jnp.maximum(1.0 - cos_cone, 1e-9)
+    centred = 1.0 - jnp.clip(jnp.linalg.norm(mid - centroid, axis=-1) / radius, 0.0, 1.0)
+    score = prm.antipodal_weight * anti + prm.centre_weight * centred
+    score = jnp.where(antipodal, score, -jnp.inf)
+    order = jnp.argsort(-score)
+    kept = _nms(p1, p2, order, antipodal, num_grasps, prm.min_separation)
+    base_valid = kept >= 0
+    kk = jnp.maximum(kept, 0)
+
+    axis = d[kk]
+    R0 = _frames(axis, prm.approach_reference)  # g 3 3
+    # Axis sign flip = rotation by π about z (x → -x, y → -y); then rolls about the new x.
+    flip = jnp.diag(jnp.array([-1.0, -1.0, 1.0]))
+    Rs = jnp.stack([R0, R0 @ flip], axis=1)  # g 2 3 3
+    roll = jaxlie.SO3.from_x_radians(2.0 * jnp.pi * jnp.arange(num_rolls) / num_rolls).as_matrix()
+    R = Rs[:, :, None] @ roll[None, None]  # g 2 K 3 3
+    shifts = prm.shifts
+    centre = mid[kk][:, None, None, None, :] + shifts[None, None, None, :, None] * R[:, :, :, None, :, 0]
+    g, K, S = num_grasps, num_rolls, shifts.shape[0]
+    R_full = jnp.broadcast_to(R[:, :, :, None], (g, 2, K, S, 3, 3))
+    pose = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R_full), centre)
+    n = g * 2 * K * S
+    rep = lambda x: jnp.broadcast_to(x[:, None, None, None], (g, 2, K, S)).reshape(n)
+
+    num_hit = jnp.sum(hit)
+    num_width = jnp.sum(width_ok)
+    num_anti = jnp.sum(antipodal)
+    result = GraspResult.where(
+        num_hit == 0,
+        GraspResult.no_opposite_surface,
+        GraspResult.where(
+            num_width == 0,
+            GraspResult.width_out_of_range,
+            GraspResult.where(num_anti == 0, GraspResult.outside_friction_cone, GraspResult.success),
+        ),
+    )
+    return PartGrasps(
+        T_part_grasp=pose.wxyz_xyz.reshape(n, 7),
+        width=rep(jnp.where(base_valid, width[kk], 0.0)),
+        score=rep(jnp.where(base_valid, score[kk], -jnp.inf)),
+        valid=rep(base_valid),
+        base_index=rep(jnp.arange(g)),
+        contacts=jnp.where(base_valid[:, None, None], jnp.stack([p1[kk], p2[kk]], axis=1), 0.0),
+        base_valid=base_valid,
+        result=result,
+        num_hit=num_hit,
+        num_width_ok=num_width,
+        num_antipodal=num_anti,
+    )
+
+
+_sample = eqx.filter_jit(_sample_impl)
+
+
+def _bucket(n: int) -> int:
+    return max(256, 1 << (n - 1).bit_length())
+
+
+def sample_antipodal_grasps(
+    mesh: PartMesh, key: PRNGKeyArray, config: GraspConfig = GraspConfig()
+) -> PartGrasps:
+    """Antipodal parallel-jaw grasps of one part, augmented to a fixed-size candidate set.
+
+    Dex-Net-style sampling (Mahler et al. 2017) as RSRD uses it: `num_samples` area-weighted
+    surface points; from each, a ray along the inward normal to the first opposite surface
+    (Möller–Trumbore against every face); a pair is antipodal when the width lies in
+    [min_width, max_width] and both outward normals lie within `friction_angle_deg` of the
+    axis (contact 1's negated). Candidates are scored (antipodality + centredness), de-duplicated
+    greedily (`min_separation`) and the best `num_grasps` kept; each is augmented to
+    2 axis signs × `num_rolls` rolls × `len(shifts)` shifts (10 × 2 × 8 × 3 = 480 by default).
+    See the module docstring for the grasp frame. Deterministic for a given key.
+
+    No grasp is not an error: `result` says why (e.g. `width_out_of_range`) and every row is
+    padding.
+
+    Args:
+        mesh: closed, outward-oriented part mesh (part frame, metres).
+        key: PRNG key.
+        config: sampling options (static: changing one recompiles).
+
+    Returns:
+        PartGrasps with n = num_grasps × 2 × num_rolls × len(shifts) rows.
+    """
+    if len(mesh.faces) == 0:
+        raise ValueError("mesh: has no faces")
+    if config.num_grasps < 1 or config.num_samples < 1 or config.num_rolls < 1 or len(config.shifts) < 1:
+        raise ValueError(f"config: counts must be positive, got {config}")
+    tri = np.asarray(mesh.vertices, dtype=np.float32)[np.asarray(mesh.faces)]
+    fb = _bucket(len(tri))
+    # Degenerate padding faces have zero area: never sampled, never hit.
+    tri = np.concatenate([tri, np.zeros((fb - len(tri), 3, 3), np.float32)])
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    tm = mesh.to_trimesh()
+    centroid = np.asarray(tm.center_mass if mesh.watertight and tm.volume > 0 else verts.mean(0))
+    radius = max(float(np.linalg.norm(verts - centroid, axis=-1).max()), 1e-9)
+    return _sample(
+        jnp.asarray(tri), jnp.asarray(centroid, jnp.float32), jnp.asarray(radius, jnp.float32), key,
+        _Params.of(config), config.num_samples, config.num_grasps, config.num_rolls, config.ray_batch,
+    )

@@ -1,0 +1,219 @@
+"""Part meshes (alpha shapes) and antipodal grasps against shapes of known geometry."""
+
+import itertools
+
+import jax
+import numpy as np
+import pytest
+import trimesh
+
+from rsrd_jax.grasp import (
+    GraspConfig,
+    GraspResult,
+    MeshConfig,
+    PartMesh,
+    build_part_mesh,
+    sample_antipodal_grasps,
+)
+from rsrd_jax.grasp._mesh import _decimate, _is_watertight
+
+BOX = (0.03, 0.02, 0.06)  # metres; 60 mm exceeds the 50 mm jaw
+
+
+def _box_surface_points(n: int, noise: float, seed: int) -> np.ndarray:
+    pts, _ = trimesh.sample.sample_surface(trimesh.creation.box(BOX), n, seed=seed)
+    return pts + np.random.default_rng(seed).normal(0.0, noise, pts.shape)
+
+
+def _exact_box_mesh() -> PartMesh:
+    box = trimesh.creation.box(BOX)
+    return PartMesh(np.asarray(box.vertices), np.asarray(box.faces), "convex_hull", float("nan"), True, "exact box")
+
+
+@pytest.fixture(scope="module")
+def box_grasps():
+    return sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0))
+
+
+@pytest.mark.parametrize("n", [400, 2000])
+def test_alpha_shape_of_box_surface_is_watertight_with_box_volume(n):
+    mesh = build_part_mesh(_box_surface_points(n, 2e-4, seed=n))
+    tm = mesh.to_trimesh()
+    assert mesh.method == "alpha_shape", mesh.reason
+    assert mesh.watertight and tm.is_watertight and tm.is_winding_consistent
+    assert tm.volume > 0  # outward normals: positive signed volume
+    assert tm.volume == pytest.approx(np.prod(BOX), rel=0.12)
+    np.testing.assert_allclose(tm.extents, BOX, atol=2.5e-3)
+    assert len(mesh.faces) <= MeshConfig().target_faces
+
+
+def test_alpha_shape_keeps_concavity_that_the_hull_fills():
+    # L-shaped solid (volume samples): 40×40×10 mm minus a 30×30 mm corner.
+    rng = np.random.default_rng(1)
+    pts = rng.uniform([0, 0, 0], [0.04, 0.04, 0.01], (6000, 3))
+    pts = pts[~((pts[:, 0] > 0.01) & (pts[:, 1] > 0.01))]
+    true_volume = (0.04 * 0.04 - 0.03 * 0.03) * 0.01
+    mesh = build_part_mesh(pts)
+    hull_volume = trimesh.convex.convex_hull(pts).volume
+    assert mesh.method == "alpha_shape" and mesh.watertight
+    # Volume samples stop short of the faces (~half a spacing), hence the loose lower bound.
+    assert 0.75 * true_volume < mesh.volume < 1.05 * true_volume
+    assert hull_volume > 1.5 * true_volume  # the hull would have been wrong
+    v = mesh.vertices
+    assert not np.any((v[:, 0] > 0.013) & (v[:, 1] > 0.013))  # nothing inside the cut-out
+
+
+def test_tiny_and_flat_point_sets_fall_back_to_the_hull_and_say_why():
+    rng = np.random.default_rng(2)
+    tiny = build_part_mesh(rng.normal(size=(10, 3)) * 0.01)
+    assert tiny.method == "convex_hull" and "min_points" in tiny.reason and tiny.watertight
+    flat = build_part_mesh(np.c_[rng.normal(size=(60, 2)) * 0.01, np.zeros(60)])
+    assert flat.method == "convex_hull" and "Delaunay" in flat.reason
+    with pytest.raises(ValueError, match="points"):
+        build_part_mesh(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="points"):
+        build_part_mesh(np.full((30, 3), np.nan))
+
+
+def test_decimation_keeps_a_closed_manifold_and_the_shape():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
+    v, f = _decimate(np.asarray(sphere.vertices), np.asarray(sphere.faces), 200)
+    assert len(f) <= 200 and _is_watertight(v, f)
+    assert trimesh.Trimesh(v, f).volume == pytest.approx(4 / 3 * np.pi * 0.02**3, rel=0.05)
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.02, atol=1e-3)
+
+
+def test_box_grasps_have_box_widths_and_face_normal_axes(box_grasps):
+    g = box_grasps
+    assert g.result == GraspResult.success
+    valid = np.asarray(g.valid)
+    assert valid.sum() == 480
+    widths = np.asarray(g.width)[valid]
+    # Every width is a box dimension that fits the 50 mm jaw: 20 or 30 mm, never 60.
+    assert np.all(np.minimum(np.abs(widths - 0.02), np.abs(widths - 0.03)) < 1e-5)
+    # Rays from the two 30×20 mm faces (1/6 of the area) meet the far face 60 mm away: rejected.
+    assert int(g.num_hit) == GraspConfig().num_samples
+    assert abs(int(g.num_width_ok) / int(g.num_hit) - 5 / 6) < 0.05
+    assert int(g.num_antipodal) == int(g.num_width_ok)  # the box's opposite faces are parallel
+    R = np.asarray(g.poses.rotation().as_matrix())[valid]
+    np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-5)
+    x = R[..., 0]
+    # Axis parallel to a face normal, and to the one whose box dimension is the width.
+    assert np.allclose(np.abs(x).max(-1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(BOX)[np.abs(x).argmax(-1)], widths, atol=1e-5)
+    # Contacts lie on opposite faces, separated by the width along the axis.
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)]
+    sep = c[:, 1] - c[:, 0]
+    axis = np.abs(sep).argmax(-1)
+    np.testing.assert_allclose(np.abs(c[np.arange(len(c)), 0, axis]), np.asarray(BOX)[axis] / 2, atol=1e-5)
+    assert np.all(np.linalg.norm(sep, axis=-1) <= 0.05)
+
+
+def test_augmentation_gives_480_distinct_poses_with_documented_structure(box_grasps):
+    g = box_grasps
+    cfg = GraspConfig()
+    T = np.asarray(g.poses.as_matrix())  # 480 4 4
+    flat = T[:, :3, :].reshape(len(T), -1)
+    dists = np.linalg.norm(flat[:, None] - flat[None], axis=-1)
+    np.fill_diagonal(dists, np.inf)
+    assert dists.min() > 1e-3  # distinct poses (no duplicated roll angle or endpoint)
+    grid = T.reshape(cfg.num_grasps, 2, cfg.num_rolls, len(cfg.shifts), 4, 4)
+    c = np.asarray(g.contacts)
+    for b, s, k, j in itertools.product(range(3), range(2), range(cfg.num_rolls), range(len(cfg.shifts))):
+        pose = grid[b, s, k, j]
+        axis = (c[b, 1] - c[b, 0]) / np.linalg.norm(c[b, 1] - c[b, 0])
+        np.testing.assert_allclose(pose[:3, 0], axis if s == 0 else -axis, atol=1e-5)
+        np.testing.assert_allclose(pose[:3, 3], c[b].mean(0) + cfg.shifts[j] * pose[:3, 0], atol=1e-6)
+        # Roll k is a rotation by 2πk/K about x from roll 0.
+        R_rel = grid[b, s, 0, j, :3, :3].T @ pose[:3, :3]
+        ang = 2 * np.pi * k / cfg.num_rolls
+        np.testing.assert_allclose(R_rel[1:, 1:], [[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]], atol=1e-5)
+
+
+def test_unrolled_approach_axis_is_closest_to_the_reference(box_grasps):
+    R = np.asarray(box_grasps.poses.rotation().as_matrix()).reshape(10, 2, 8, 3, 3, 3)[:, 0, 0, 0]
+    ref = np.array(GraspConfig().approach_reference)
+    for Ri in R:
+        proj = ref - ref @ Ri[:, 0] * Ri[:, 0]
+        if np.linalg.norm(proj) > 0.1:
+            np.testing.assert_allclose(Ri[:, 2], proj / np.linalg.norm(proj), atol=1e-5)
+
+
+def test_scores_are_sorted_and_sampling_is_deterministic(box_grasps):
+    score = np.asarray(box_grasps.score).reshape(10, 48)
+    assert np.all(np.diff(score[:, 0]) <= 0) and np.all(score == score[:, :1])
+    again = sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0))
+    other = sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(1))
+    np.testing.assert_array_equal(np.asarray(again.T_part_grasp), np.asarray(box_grasps.T_part_grasp))
+    assert not np.allclose(np.asarray(other.T_part_grasp), np.asarray(box_grasps.T_part_grasp))
+
+
+def test_impossible_width_is_an_infeasible_result_not_an_error():
+    g = sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(max_width=0.015))
+    assert g.result == GraspResult.width_out_of_range
+    assert not np.asarray(g.valid).any() and np.all(np.isneginf(np.asarray(g.score)))
+    assert int(g.num_hit) == GraspConfig().num_samples and int(g.num_width_ok) == 0
+    # A regular tetrahedron fits the jaw, but the face opposite any contact is 70.5° off the
+    # axis (face normals meet at cos = -1/3): no pair inside the 45° cone.
+    v = 0.015 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
+    tet = trimesh.convex.convex_hull(v)
+    mesh = PartMesh(np.asarray(tet.vertices), np.asarray(tet.faces), "convex_hull", float("nan"), True, "")
+    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig(num_samples=200))
+    assert g.result == GraspResult.outside_friction_cone
+    assert int(g.num_width_ok) > 0 and int(g.num_antipodal) == 0
+    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig(num_samples=200, friction_angle_deg=75.0))
+    assert g.result == GraspResult.success
+
+
+def test_grasps_on_an_alpha_shape_of_box_points():
+    mesh = build_part_mesh(_box_surface_points(1500, 2e-4, seed=3))
+    g = sample_antipodal_grasps(mesh, jax.random.key(3))
+    assert g.result == GraspResult.success and int(np.asarray(g.base_valid).sum()) == 10
+    widths = np.asarray(g.width)[np.asarray(g.valid)]
+    assert np.all(np.minimum(np.abs(widths - 0.02), np.abs(widths - 0.03)) < 3e-3)
+    assert widths.max() <= 0.05
+
+
+def _ray_reference(o, d, tri, exclude):
+    """Float64 Möller–Trumbore, one ray and face at a time."""
+    t_best, f_best = np.full(len(o), np.inf), np.zeros(len(o), int)
+    for i in range(len(o)):
+        for f, (v0, v1, v2) in enumerate(tri):
+            e1, e2 = v1 - v0, v2 - v0
+            p = np.cross(d[i], e2)
+            det = e1 @ p
+            if abs(det) < 1e-15 or f == exclude[i]:
+                continue
+            s = o[i] - v0
+            u = s @ p / det
+            q = np.cross(s, e1)
+            v = d[i] @ q / det
+            t = e2 @ q / det
+            if u >= 0 and v >= 0 and u + v <= 1 and 1e-7 < t < t_best[i]:
+                t_best[i], f_best[i] = t, f
+    return t_best, f_best
+
+
+def test_jitted_ray_cast_matches_a_float64_reference_under_jit():
+    # Pins the jitted kernel to a float64 reference (an earlier formulation gave different hits
+    # under jit than eagerly on the same rays).
+    from rsrd_jax.grasp._antipodal import _ray_triangle
+
+    rng = np.random.default_rng(4)
+    sphere = trimesh.creation.icosphere(subdivisions=1, radius=0.02)
+    tri = np.asarray(sphere.triangles)
+    face = rng.integers(0, len(tri), 300)
+    bary = rng.dirichlet(np.ones(3), 300)
+    o = np.einsum("rk,rkd->rd", bary, tri[face])
+    d = rng.normal(size=(300, 3))
+    d -= 2 * np.minimum(np.sum(d * sphere.face_normals[face], -1), 0)[:, None] * sphere.face_normals[face]
+    d = -d / np.linalg.norm(d, axis=-1, keepdims=True)  # into the sphere
+    t_ref, f_ref = _ray_reference(o, d, tri, face)
+    t, f = jax.jit(_ray_triangle)(
+        jax.numpy.asarray(o, "float32"), jax.numpy.asarray(d, "float32"),
+        jax.numpy.asarray(tri, "float32"), jax.numpy.asarray(face, "int32"),
+    )
+    assert np.all(np.isfinite(t_ref))
+    np.testing.assert_allclose(np.asarray(t), t_ref, atol=1e-5)
+    assert np.mean(np.asarray(f) == f_ref) > 0.97  # ties on shared edges may pick either face
