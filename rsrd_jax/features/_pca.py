@@ -80,7 +80,7 @@ class PCA(eqx.Module):
             raise ValueError(
                 f"{source}: pca_explained_variance has shape {var.shape}, expected ({k},)"
             )
-        for name, a in zip(PCA_ARRAY_KEYS, (mean, comp, var)):
+        for name, a in zip(PCA_ARRAY_KEYS, (mean, comp, var), strict=True):
             if not np.issubdtype(a.dtype, np.floating) or not np.all(np.isfinite(a)):
                 raise ValueError(f"{source}: {name} must be finite floats")
         return cls(

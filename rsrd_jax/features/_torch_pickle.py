@@ -190,10 +190,16 @@ def load_legacy_torch_state_dict(path: str | Path) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for name, value in obj.items():
         if not isinstance(value, _LazyTensor):
-            raise TorchPickleError(f"{path}: entry {name!r} is {type(value).__name__}, not a tensor")
+            raise TorchPickleError(
+                f"{path}: entry {name!r} is {type(value).__name__}, not a tensor"
+            )
         flat = storages[value.storage_key]
         itemsize = flat.dtype.itemsize
-        span = 1 + sum((n - 1) * s for n, s in zip(value.size, value.stride)) if all(value.size) else 0
+        span = (
+            1 + sum((n - 1) * s for n, s in zip(value.size, value.stride, strict=True))
+            if all(value.size)
+            else 0
+        )
         if value.offset + span > flat.size:
             raise TorchPickleError(f"{path}: entry {name!r} reads past its storage")
         arr = np.lib.stride_tricks.as_strided(
