@@ -14,6 +14,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 # OpenGL camera axes (x right, y up, z backward) -> OpenCV axes (x right, y down, z forward).
+Num = float | int | np.floating | np.integer
+"""A plain number (beartype under pytest is strict about int vs float)."""
+
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
@@ -34,7 +37,7 @@ class Intrinsics(eqx.Module):
     """Image height in pixels."""
 
     @staticmethod
-    def create(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> Intrinsics:
+    def create(fx: Num, fy: Num, cx: Num, cy: Num, width: int, height: int) -> Intrinsics:
         """Builds intrinsics from plain numbers, validating them."""
         values = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
         for name, v in values.items():
@@ -48,7 +51,7 @@ class Intrinsics(eqx.Module):
         return Intrinsics(f32(fx), f32(fy), f32(cx), f32(cy), int(width), int(height))
 
     @staticmethod
-    def from_fov(fov_y: float, width: int, height: int) -> Intrinsics:
+    def from_fov(fov_y: Num, width: int, height: int) -> Intrinsics:
         """Square-pixel intrinsics with vertical field of view `fov_y` (radians), centred."""
         f = 0.5 * height / np.tan(0.5 * fov_y)
         return Intrinsics.create(f, f, width / 2.0, height / 2.0, width, height)
@@ -102,12 +105,12 @@ class Camera(eqx.Module):
     def height(self) -> int:
         return self.intrinsics.height
 
-    def world_to_cam(self, points_world: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    def world_to_cam(self, points_world: Float[Array | np.ndarray, "*batch 3"]) -> Float[Array, "*batch 3"]:
         """World points into the camera frame (metres, OpenCV axes)."""
         return self.T_cam_world @ points_world
 
     def project(
-        self, points_world: Float[Array, "*batch 3"]
+        self, points_world: Float[Array | np.ndarray, "*batch 3"]
     ) -> tuple[Float[Array, "*batch 2"], Float[Array, "*batch"]]:
         """Projects world points to pixel coordinates.
 
@@ -127,7 +130,7 @@ class Camera(eqx.Module):
 
 
 def project_points(
-    intrinsics: Intrinsics, points_cam: Float[Array, "*batch 3"]
+    intrinsics: Intrinsics, points_cam: Float[Array | np.ndarray, "*batch 3"]
 ) -> tuple[Float[Array, "*batch 2"], Float[Array, "*batch"]]:
     """Pinhole projection of camera-frame points; returns (uv pixels, depth z in metres)."""
     z = points_cam[..., 2]
@@ -148,7 +151,7 @@ def pixel_directions(intrinsics: Intrinsics) -> Float[Array, "h w 3"]:
 
 
 def backproject_depth(
-    intrinsics: Intrinsics, depth: Float[Array, "h w"]
+    intrinsics: Intrinsics, depth: Float[Array | np.ndarray, "h w"]
 ) -> Float[Array, "h w 3"]:
     """Camera-frame 3D points of a z-depth map (metres); invalid depth (≤ 0) gives z ≤ 0 points."""
     return pixel_directions(intrinsics) * depth[..., None]

@@ -14,10 +14,13 @@ from __future__ import annotations
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+from collections.abc import Sequence
+
+from jax.typing import ArrayLike
 from jaxtyping import Array, Float
 
 
-def se3_from_wxyz_xyz(arr: Float[Array, "*batch 7"]) -> jaxlie.SE3:
+def se3_from_wxyz_xyz(arr: Float[ArrayLike, "*batch 7"]) -> jaxlie.SE3:
     """SE3 from wxyz_xyz 7-vectors (the on-disk format); the quaternion is normalised."""
     arr = jnp.asarray(arr)
     q = arr[..., :4] / jnp.linalg.norm(arr[..., :4], axis=-1, keepdims=True)
@@ -29,9 +32,10 @@ def se3_from_rt(R: Float[Array, "*batch 3 3"], t: Float[Array, "*batch 3"]) -> j
     return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)
 
 
-def look_at(
-    eye: Float[Array, "3"], target: Float[Array, "3"], up: Float[Array, "3"] = (0.0, 0.0, 1.0)
-) -> jaxlie.SE3:
+Vec3 = ArrayLike | Sequence[float | int]
+
+
+def look_at(eye: Vec3, target: Vec3, up: Vec3 = (0.0, 0.0, 1.0)) -> jaxlie.SE3:
     """`T_cam_world` of an OpenCV camera at `eye` looking at `target` with world `up` pointing up
     in the image (image y is down)."""
     eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
@@ -57,6 +61,6 @@ def pose_error(
     return trans, 2.0 * jnp.arccos(w)
 
 
-def yaw_rotation(yaw: Float[Array, "*batch"]) -> jaxlie.SO3:
+def yaw_rotation(yaw: ArrayLike) -> jaxlie.SO3:
     """Rotation about world +z by `yaw` radians."""
     return jaxlie.SO3.from_z_radians(jnp.asarray(yaw))

@@ -10,7 +10,8 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -128,7 +129,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
     return obj
 
 
-def require(cond: bool, path: Any, field: str, expected: str) -> None:
+def require(cond: object, path: Any, field: str, expected: str) -> None:
     """Raises `ArtefactError` naming `path`, `field` and what was expected unless `cond`."""
     if not cond:
         raise ArtefactError(f"{path}: field {field!r}: expected {expected}")

@@ -60,25 +60,25 @@ class Capture:
         """All views' world-to-camera transforms, V×4×4 (OpenCV axes)."""
         return np.stack([f.T_cam_world for f in self.frames])
 
-    def image(self, i: int) -> np.ndarray:
+    def image(self, i: int | np.integer) -> np.ndarray:
         """View i's RGB image, H×W×3 uint8."""
         return self._checked(read_image_rgb(self.frames[i].image_path), self.frames[i].image_path)
 
-    def depth(self, i: int) -> np.ndarray:
+    def depth(self, i: int | np.integer) -> np.ndarray:
         """View i's metric z-depth, H×W float32 metres (0 where unknown)."""
         p = self.frames[i].depth_path
         if p is None:
             raise ArtefactError(f"{self.root / 'transforms.json'}: frame {i} has no depth_file_path")
         return self._checked(read_depth_png(p), p)
 
-    def valid_mask(self, i: int) -> np.ndarray:
+    def valid_mask(self, i: int | np.integer) -> np.ndarray:
         """View i's pixels to use (nerfstudio mask: nonzero = use), H×W bool; all True if none."""
         p = self.frames[i].mask_path
         if p is None:
             return np.ones((self.intrinsics.height, self.intrinsics.width), bool)
         return self._checked(read_label_png(p), p) > 0
 
-    def part_mask(self, i: int) -> np.ndarray:
+    def part_mask(self, i: int | np.integer) -> np.ndarray:
         """View i's part labels, H×W uint8 (0 background, k = part k)."""
         p = self.frames[i].part_mask_path
         if p is None:
@@ -173,4 +173,4 @@ def write_transforms(
 
 
 def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))

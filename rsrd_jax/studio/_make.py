@@ -185,7 +185,7 @@ def make_scan(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.
         part_points=np.concatenate(pts_part),
         part_point_ids=np.concatenate(ids),
     )
-    return {"views": cfg.scan_views, "size": list(cfg.scan_size), "camera_distance_m": dist, "object_radius_m": radius}
+    return {"views": cfg.scan_views, "size": list(cfg.scan_size), "camera_distance_m": round(float(dist), 4), "object_radius_m": round(radius, 4)}
 
 
 def make_demo(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.ndarray) -> dict:
@@ -200,7 +200,8 @@ def make_demo(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.
     n = cfg.demo_frames or obj.num_frames
     opts = SceneOptions(K.width, K.height, cfg.demo_fovy_deg, cfg.seed, hands=True, clutter=cfg.clutter, lighting=cfg.lighting)
     with build_scene(obj, T_demo_root, opts) as scene:
-        T_world_part_rest = scene.part_poses()  # at the scan configuration: world = demo world
+        scene.set_configuration(0.0)
+        T_world_part_rest = scene.part_poses()  # at the scan configuration, in the demo world
         # frame the whole motion: object points over the demo
         pts = []
         for s in np.linspace(0, 1, 7):
@@ -261,7 +262,7 @@ def make_demo(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.
         keypoints_visible=kp_vis,
         contact_parts=np.array([c.part for c in obj.contacts], np.int32),
     )
-    return {"frames": n, "size": list(cfg.demo_size), "yaw_deg": float(np.rad2deg(yaw)), "camera_distance_m": dist}
+    return {"frames": n, "size": list(cfg.demo_size), "yaw_deg": round(float(np.rad2deg(yaw)), 2), "camera_distance_m": round(float(dist), 4)}
 
 
 def make_robot_view(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.ndarray) -> dict:
@@ -298,7 +299,7 @@ def make_robot_view(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_roo
             "note": "T_robot_world maps points of the scan's world frame into the robot base frame",
         },
     )
-    return {"size": list(cfg.robot_size), "yaw_deg": float(np.rad2deg(yaw))}
+    return {"size": list(cfg.robot_size), "yaw_deg": round(float(np.rad2deg(yaw)), 2)}
 
 
 def _project(K: Intrinsics, T_cam_world: np.ndarray, pts: np.ndarray) -> np.ndarray:

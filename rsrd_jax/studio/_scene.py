@@ -48,12 +48,22 @@ def _hand_xml(i: int, width: float) -> str:
     return f'<body name="hand{i}" mocap="true">{"".join(geoms)}</body>'
 
 
+def ground_texture(seed: int, size: int = 256) -> np.ndarray:
+    """A low-contrast wood-grain texture for the floor/table (size×size×3 uint8)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    warp = 0.03 * np.sin(2 * np.pi * (2 * yy + rng.uniform()))
+    grain = 0.5 + 0.5 * np.sin(2 * np.pi * (18 * (xx + warp) + 3 * np.sin(2 * np.pi * yy)))
+    base = np.array([0.62, 0.5, 0.38]) * (0.85 + 0.15 * grain)[..., None]
+    img = base + rng.normal(0, 0.02, base.shape)
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
 def build_scene(obj: StudioObject, T_world_root: np.ndarray, opts: SceneOptions) -> StudioScene:
     """Compiles the scene (object placed at `T_world_root`, 4×4) and returns a renderable handle."""
     asset_xml, body_xml, files = object_mjcf(obj, T_world_root, opts.seed)
     rng = np.random.default_rng(opts.seed + 7)
-    ground = part_texture((0.55, 0.5, 0.45), opts.seed + 99, 256).astype(np.float32)
-    files["ground.png"] = png_bytes((0.35 * ground + 0.65 * ground.mean(axis=2, keepdims=True) * 0.9).astype(np.uint8))
+    files["ground.png"] = png_bytes(ground_texture(opts.seed + 99))
     li = opts.lighting
     extras = []
     if opts.ground == "floor":
@@ -283,7 +293,7 @@ def part_surface_points(model: mujoco.MjModel, body_id: int, n: int, seed: int) 
             continue
         areas.append(a)
     areas = np.asarray(areas)
-    counts = np.maximum(1, np.round(n * areas / areas.sum()).astype(int))
+    counts = [int(c) for c in np.maximum(1, np.round(n * areas / areas.sum()))]
     pts = []
     for g, sampler, m in zip(geoms, samplers, counts):
         R = np.zeros(9)

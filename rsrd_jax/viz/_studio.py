@@ -17,12 +17,12 @@ def studio_contact_sheet(root: str | Path, out_png: str | Path, scan_views: int 
     images, labels = [], []
     if (root / "scan").is_dir():
         cap = read_capture(root / "scan")
-        for i in np.linspace(0, len(cap) - 1, scan_views).astype(int):
+        for i in map(int, np.linspace(0, len(cap) - 1, scan_views)):
             images += [cap.image(i), colorize_depth(cap.depth(i)), colorize_labels(cap.part_mask(i))]
             labels += [f"scan {i}", f"depth {i}", f"parts {i}"]
     if (root / "demo").is_dir():
         demo = read_demo(root / "demo" / "demo.mp4")
-        for t in np.linspace(0, demo.num_frames - 1, demo_frames).astype(int):
+        for t in map(int, np.linspace(0, demo.num_frames - 1, demo_frames)):
             images.append(demo.frames[t])
             labels.append(f"demo t={t}")
     if (root / "robot_view").is_dir():

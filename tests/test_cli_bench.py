@@ -1,0 +1,59 @@
+"""The CLI and the benchmark runner, end to end on tiny sizes."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rsrd_jax.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_studio_list(capsys):
+    assert main(["studio", "list"]) == 0
+    out = capsys.readouterr().out
+    assert "red_box" in out and "frog" in out and "bimanual" in out
+
+
+def test_studio_make_tiny_with_sheet_and_rerun(tmp_path, capsys):
+    args = ["studio", "make", "scissors", "--out", str(tmp_path / "s"), "--views", "3", "--scan-size", "64", "48",
+            "--frames", "3", "--demo-size", "64", "48", "--robot-size", "96", "54", "--sheet", "--rerun"]  # fmt: skip
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "scissors" in out and "timings" in out
+    for f in ("object.json", "contact_sheet.png", "studio.rrd", "scan/transforms.json", "demo/demo.mp4", "robot_view/rgb.png"):
+        assert (tmp_path / "s" / f).is_file(), f
+    assert (tmp_path / "s" / "studio.rrd").stat().st_size > 1000
+    # a second run refuses to overwrite the user's directory
+    assert main(args) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_studio_make_unknown_object(tmp_path, capsys):
+    assert main(["studio", "make", "teapot", "--out", str(tmp_path / "t")]) == 2
+    assert "unknown studio object 'teapot'" in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()
+
+
+def test_benchmark_runner_writes_records(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.run", "studio", "--quick", "--json", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    records = json.loads(out.read_text())
+    assert len(records) >= 2
+    for r in records:
+        for k in ("bench", "case", "median_ms", "compile_s", "peak_rss_mb", "metrics", "versions", "device"):
+            assert k in r
+        assert r["median_ms"] > 0 and r["device"]["platform"] == "cpu"
+    assert "median ms" in proc.stdout
+
+
+def test_benchmark_runner_rejects_unknown_name():
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "nope"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode != 0 and "unknown benchmark" in proc.stderr
