@@ -47,8 +47,8 @@ class ObjectGeometry(eqx.Module):
 
 
 def object_boxes_from_points(
-    points: Float[Array, "n 3"], part_ids: Int[Array, " n"], num_parts: int, pad: float = 0.0,
-    min_half: float = 0.002,
+    points: Float[Array | np.ndarray, "n 3"], part_ids: Int[Array | np.ndarray, " n"],
+    num_parts: int, pad: float = 0.0, min_half: float = 0.002,
 ) -> ObjectGeometry:
     """One oriented bounding box per part from its points (host-side, numpy).
 
@@ -99,7 +99,8 @@ def object_boxes_from_points(
 
 
 def object_capsules_from_points(
-    points: Float[Array, "n 3"], part_ids: Int[Array, " n"], num_parts: int, pad: float = 0.0
+    points: Float[Array | np.ndarray, "n 3"], part_ids: Int[Array | np.ndarray, " n"],
+    num_parts: int, pad: float = 0.0,
 ) -> ObjectGeometry:
     """One capsule per part from its points (host-side): axis = principal axis through the mean,
     radius = largest distance of a point from the axis segment (+ ``pad``), so it covers all points.
@@ -201,36 +202,30 @@ def _distances_single(kin, geom, obj, q, T_world_part):
 
 @eqx.filter_jit
 def _collide_jit(kin, geom, obj, q, T_world_part, object_mask, margin, check_finite):
+    """Flat batch: q (N, 16), T_world_part (N, P, 7) or None."""
     if check_finite:
         q = _check_finite(q)
-    batch = q.shape[:-1]
-    qf = q.reshape(-1, q.shape[-1])
     if T_world_part is None:
-        tw = None
-        fn = jax.vmap(lambda x: _distances_single(kin, geom, obj, x, None))
-        d_self, d_table, d_obj = fn(qf)
+        d_self, d_table, d_obj = jax.vmap(lambda x: _distances_single(kin, geom, obj, x, None))(q)
     else:
-        tw = jnp.broadcast_to(T_world_part, (*batch, *T_world_part.shape[-2:]))
-        tw = tw.reshape(-1, *T_world_part.shape[-2:])
-        fn = jax.vmap(lambda x, t: _distances_single(kin, geom, obj, x, t))
-        d_self, d_table, d_obj = fn(qf, tw)
+        d_self, d_table, d_obj = jax.vmap(
+            lambda x, t: _distances_single(kin, geom, obj, x, t))(q, T_world_part)
     inf = jnp.asarray(jnp.inf, d_self.dtype)
     min_self = jnp.min(d_self, axis=-1, initial=inf)
     min_table = jnp.min(d_table, axis=-1, initial=inf)
     min_obj = jnp.min(jnp.where(object_mask[:, None], d_obj, inf), axis=(-2, -1), initial=inf)
     sc, tc, oc = min_self < margin, min_table < margin, min_obj < margin
-    res = CollisionResult(
+    return CollisionResult(
         self_distance=d_self, table_distance=d_table, object_distance=d_obj,
         min_self=min_self, min_table=min_table, min_object=min_obj,
         in_collision=sc | tc | oc, self_collision=sc, table_collision=tc, object_collision=oc)
-    return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), res)
 
 
 def collision_distances(
     model: YumiModel,
-    q: Float[Array, "*batch 16"],
+    q: Float[Array | np.ndarray, "*batch 16"],
     obj: ObjectGeometry | None = None,
-    T_world_part: Float[Array, "*batch parts 7"] | None = None,
+    T_world_part: Float[Array | np.ndarray, "*#pbatch parts 7"] | None = None,
     margin: float = 0.0,
     hand_touches_object: bool = False,
     check_finite: bool = True,
@@ -274,9 +269,15 @@ def collision_distances(
                              f"to q batch {q.shape[:-1]}") from e
     else:
         T_world_part = None
+    batch = q.shape[:-1]
+    qf = q.reshape(-1, q.shape[-1])
+    if T_world_part is not None:  # broadcast on the host, flatten: one compile per batch size
+        T_world_part = jnp.broadcast_to(T_world_part, (*batch, *T_world_part.shape[-2:]))
+        T_world_part = T_world_part.reshape(-1, *T_world_part.shape[-2:])
     mask = ~model.geom.hand_mask if hand_touches_object else jnp.ones_like(model.geom.hand_mask)
-    return _collide_jit(model.kin, model.geom, obj, q, T_world_part, mask,
-                        jnp.asarray(margin, q.dtype), check_finite)
+    res = _collide_jit(model.kin, model.geom, obj, qf, T_world_part, mask,
+                       jnp.asarray(margin, q.dtype), check_finite)
+    return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), res)
 
 
 class MJXContacts(eqx.Module):
@@ -291,7 +292,7 @@ class MJXContacts(eqx.Module):
     """Any robot slot with dist < 0."""
 
 
-def mjx_penetration(model: YumiModel, q: Float[Array, "*batch 16"]) -> MJXContacts:
+def mjx_penetration(model: YumiModel, q: Float[Array | np.ndarray, "*batch 16"]) -> MJXContacts:
     """Penetration check with MJX (``mjx.kinematics`` + ``mjx.collision``) on the scene model.
 
     Only the sign is meaningful for pairs involving a box (table, object boxes, finger pads):
@@ -307,8 +308,11 @@ def mjx_penetration(model: YumiModel, q: Float[Array, "*batch 16"]) -> MJXContac
     """
     check_q(q)
     q = jnp.asarray(q)
-    return _mjx_jit(model.mjx_model, q, model.qpos_adr, model.mimic_qpos_adr,
-                    _robot_geom_mask(model))
+    batch = q.shape[:-1]
+    res = _mjx_jit(model.mjx_model, q.reshape(-1, q.shape[-1]), model.qpos_adr,
+                   model.mimic_qpos_adr, _robot_geom_mask(model))
+    return MJXContacts(dist=res.dist.reshape(*batch, -1), geom=res.geom,
+                       penetrating=res.penetrating.reshape(batch))
 
 
 def _robot_geom_mask(model: YumiModel) -> tuple[bool, ...]:
@@ -327,8 +331,6 @@ def _mjx_jit(mjx_model, q, qpos_adr, mimic_adr, robot_geom):
     from mujoco import mjx
 
     q = _check_finite(q)
-    batch = q.shape[:-1]
-    qf = q.reshape(-1, q.shape[-1])
     d0 = mjx.make_data(mjx_model)
 
     def one(x):
@@ -338,9 +340,9 @@ def _mjx_jit(mjx_model, q, qpos_adr, mimic_adr, robot_geom):
         c = d._impl.contact
         return c.dist, c.geom
 
-    dist, geom = jax.vmap(one)(qf)
+    dist, geom = jax.vmap(one)(q)
     geom = geom[0]
     rg = jnp.asarray(robot_geom)
     is_robot = rg[geom[:, 0]] | rg[geom[:, 1]]
     pen = jnp.any((dist < 0) & is_robot, axis=-1)
-    return MJXContacts(dist=dist.reshape(*batch, -1), geom=geom, penetrating=pen.reshape(batch))
+    return MJXContacts(dist=dist, geom=geom, penetrating=pen)

@@ -12,9 +12,9 @@ ROBOT_XML = MODEL_DIR / "yumi.xml"
 SCENE_XML = MODEL_DIR / "scene.xml"
 FACTS_JSON = MODEL_DIR / "yumi_kinematics.json"
 
-TABLE_TOP_Z = -0.1
-"""Height of the table top in the world (= robot base_link) frame, metres: the robot's foot."""
-TABLE_CENTER = (0.25, 0.0, -0.15)
+TABLE_TOP_Z = 0.0
+"""Height of the table top in the world (= robot base_link) frame, metres (= studio TABLE_HEIGHT)."""
+TABLE_CENTER = (0.25, 0.0, -0.05)
 """Centre of the table box in the world frame (m)."""
 TABLE_HALF_EXTENTS = (0.7, 0.8, 0.05)
 """Half extents of the table box (m)."""

@@ -6,6 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._model import Kinematics, YumiModel, check_q
@@ -61,11 +62,8 @@ def _se3(R: Array, p: Array) -> jaxlie.SE3:
 def _fk_jit(kin: Kinematics, q: Array, check_finite: bool) -> tuple[Array, Array]:
     if check_finite:
         q = _check_finite(q)
-    batch = q.shape[:-1]
-    R, p, tR, tp = jax.vmap(lambda x: _fk_single(kin, x))(q.reshape(-1, q.shape[-1]))
-    links = _se3(R, p).wxyz_xyz
-    tcp = _se3(tR, tp).wxyz_xyz
-    return links.reshape(*batch, *links.shape[1:]), tcp.reshape(*batch, *tcp.shape[1:])
+    R, p, tR, tp = jax.vmap(lambda x: _fk_single(kin, x))(q)
+    return _se3(R, p).wxyz_xyz, _se3(tR, tp).wxyz_xyz
 
 
 class FKResult(eqx.Module):
@@ -78,7 +76,7 @@ class FKResult(eqx.Module):
 
 
 def forward_kinematics(
-    model: YumiModel, q: Float[Array, "*batch 16"], check_finite: bool = True
+    model: YumiModel, q: Float[Array | np.ndarray, "*batch 16"], check_finite: bool = True
 ) -> FKResult:
     """Link and TCP poses for a batch of configurations (jit, vmap and grad compatible).
 
@@ -95,12 +93,16 @@ def forward_kinematics(
         ValueError: if the last axis of q is not 16.
     """
     check_q(q)
-    links, tcp = _fk_jit(model.kin, jnp.asarray(q), check_finite)
-    return FKResult(T_world_link=jaxlie.SE3(links), T_world_tcp=jaxlie.SE3(tcp))
+    q = jnp.asarray(q)
+    batch = q.shape[:-1]
+    # Flatten on the host so every batch shape with the same size shares one compilation.
+    links, tcp = _fk_jit(model.kin, q.reshape(-1, q.shape[-1]), check_finite)
+    return FKResult(T_world_link=jaxlie.SE3(links.reshape(*batch, *links.shape[1:])),
+                    T_world_tcp=jaxlie.SE3(tcp.reshape(*batch, *tcp.shape[1:])))
 
 
 def tcp_poses(
-    model: YumiModel, q: Float[Array, "*batch 16"], check_finite: bool = True
+    model: YumiModel, q: Float[Array | np.ndarray, "*batch 16"], check_finite: bool = True
 ) -> Float[Array, "*batch 2 7"]:
     """TCP poses (right, left) as wxyz_xyz 7-vectors, world frame; see :func:`forward_kinematics`."""
     return forward_kinematics(model, q, check_finite).T_world_tcp.wxyz_xyz
