@@ -24,6 +24,7 @@ from rsrd_jax.features import (
     PCA,
     EfficientNetConfig,
     EfficientNetExtractor,
+    FeatureConfig,
     FeatureMap,
     OnnxConfig,
     OnnxFeatureExtractor,
@@ -32,6 +33,7 @@ from rsrd_jax.features import (
     fit_pca,
     load_efficientnet_lite0,
     load_legacy_torch_state_dict,
+    make_extractor,
     mask_to_grid,
 )
 
@@ -583,3 +585,30 @@ def test_pca_masks_serialisation_and_errors(rng):
         fit_pca([x, x[..., :5]], dim=2)
     with pytest.raises(ValueError, match=r"masks\[0\]"):
         fit_pca([x], dim=2, masks=[mask[:5]])
+
+
+def test_feature_config_round_trip_and_factory(tmp_path):
+    import json
+
+    path = tmp_path / "vit.onnx"
+    _build_vit(path)
+    cfg = FeatureConfig(
+        backend="onnx",
+        onnx=OnnxConfig(str(path), patch_size=PATCH, mean=(0.5, 0.5, 0.5)),
+        efficientnet=EfficientNetConfig(strides=(4, 8), input_scale=1.5),
+        pca_dim=32,
+    )
+    back = FeatureConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert back == cfg
+    ext = make_extractor(back)
+    assert isinstance(ext, OnnxFeatureExtractor) and ext.config.mean == (0.5, 0.5, 0.5)
+    with pytest.raises(ValueError, match="model.json.efficientnet: unknown fields"):
+        FeatureConfig.from_dict(
+            {**cfg.to_dict(), "efficientnet": {"stride": [8]}}, source="model.json"
+        )
+    with pytest.raises(ValueError, match="version"):
+        FeatureConfig.from_dict({**cfg.to_dict(), "version": 99})
+    with pytest.raises(ValueError, match="backend"):
+        FeatureConfig(backend="dino")
+    with pytest.raises(ValueError, match="needs FeatureConfig.onnx"):
+        FeatureConfig(backend="onnx")

@@ -7,6 +7,7 @@ user-supplied ViT/DINOv2 ONNX extractor (onnxruntime), and PCA of features over 
 Does not own: rendering features from Gaussians, the feature-field MLP or its training.
 """
 
+from ._config import BACKENDS, FeatureConfig, make_extractor
 from ._efficientnet import (
     STAGE_CHANNELS,
     EfficientNetLite0,
@@ -27,6 +28,9 @@ from ._pca import PCA, PCA_ARRAY_KEYS, fit_pca
 from ._torch_pickle import TorchPickleError, load_legacy_torch_state_dict
 
 __all__ = [
+    "BACKENDS",
+    "FeatureConfig",
+    "make_extractor",
     "PCA",
     "PCA_ARRAY_KEYS",
     "STAGE_CHANNELS",
