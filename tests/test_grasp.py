@@ -159,10 +159,10 @@ def test_impossible_width_is_an_infeasible_result_not_an_error():
     v = 0.015 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
     tet = trimesh.convex.convex_hull(v)
     mesh = PartMesh(np.asarray(tet.vertices), np.asarray(tet.faces), "convex_hull", float("nan"), True, "")
-    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig(num_samples=200))
+    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig())
     assert g.result == GraspResult.outside_friction_cone
     assert int(g.num_width_ok) > 0 and int(g.num_antipodal) == 0
-    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig(num_samples=200, friction_angle_deg=75.0))
+    g = sample_antipodal_grasps(mesh, jax.random.key(0), GraspConfig(friction_angle_deg=75.0))
     assert g.result == GraspResult.success
 
 

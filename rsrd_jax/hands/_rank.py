@@ -122,12 +122,19 @@ def _fingertip_distances(
     """Distance from each fingertip to the nearest point of each part, per frame (NaN tips give
     NaN)."""
 
+    pts2 = jnp.sum(points**2, axis=-1)  # p n
+
     def frame(args):
         T, k = args
-        X = jax.vmap(lambda Tp, x: jaxlie.SE3(Tp).apply(x))(T, points)  # p n 3
-        d2 = jnp.sum((k[:, :, None, None, :] - X[None, None]) ** 2, axis=-1)  # h 2 p n
-        d2 = jnp.where(mask[None, None], d2, jnp.inf)
-        return jnp.sqrt(jnp.min(d2, axis=-1))
+        # Distance in the part frame (rigid motions preserve it): move the tips, not the points.
+        T_part_obj = jaxlie.SE3(T).inverse()
+        k_part = jax.vmap(lambda Tp: Tp.apply(k.reshape(-1, 3)))(T_part_obj)  # p m 3
+        # |k - x|² = |k|² + |x|² - 2 k·x as a matmul over all points.
+        cross = jnp.einsum("pmd,pnd->pmn", k_part, points)
+        d2 = jnp.sum(k_part**2, axis=-1)[:, :, None] + pts2[:, None, :] - 2.0 * cross
+        d2 = jnp.where(mask[:, None, :], d2, jnp.inf)
+        d = jnp.sqrt(jnp.maximum(jnp.min(d2, axis=-1), 0.0))  # p m
+        return d.T.reshape(k.shape[:-1] + (points.shape[0],))
 
     return jax.lax.map(frame, (T_obj_part, tips), batch_size=chunk)
 
@@ -178,8 +185,11 @@ def _relative_motion(
         Tq = jaxlie.SE3(jnp.where(q >= 0, T_obj_part[:, jnp.maximum(q, 0)], ident.wxyz_xyz))
         Tp = jaxlie.SE3(T_obj_part[:, p])
         T_rel = Tq.inverse() @ Tp  # t
-        X = jax.vmap(lambda Tr: Tr.apply(points[p]))(T_rel)  # t n 3
-        disp2 = jnp.sum((X - X[:1]) ** 2, axis=-1)  # t n
+        # Displacement of x under T_rel(t) relative to T_rel(0): (R_t - R_0) x + (t_t - t_0).
+        dR = T_rel.rotation().as_matrix() - T_rel.rotation().as_matrix()[:1]  # t 3 3
+        dt = T_rel.translation() - T_rel.translation()[:1]  # t 3
+        disp = jnp.einsum("tij,nj->tni", dR, points[p]) + dt[:, None, :]
+        disp2 = jnp.sum(disp**2, axis=-1)  # t n
         rms = jnp.sqrt(jnp.sum(jnp.where(mask[p][None], disp2, 0.0), -1) / jnp.sum(mask[p]))
         return jnp.sum(frame_weights * rms) / jnp.sum(frame_weights)
 
