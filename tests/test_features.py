@@ -10,7 +10,6 @@ import struct
 from pathlib import Path
 
 import cv2
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -278,46 +277,57 @@ def test_loader_rejects_wrong_architecture(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
-# One odd-sized image for all comparisons (one compilation): 76 rows give the asymmetric TF-SAME
-# pad (0, 1) at the stem, 101 columns the symmetric (1, 1); later stages mix both.
-SIZE = (76, 101)
+# All full-network checks share one batch (two compilations: logits, default features). 223 rows
+# give the symmetric TF-SAME stem pad (1, 1), 224 columns the asymmetric (0, 1).
+SIZE = (223, 224)
 
 
-@eqx.filter_jit
-def _net_outputs(net, x):
-    """Logits and the stride-8/16 stage outputs of [0, 1] NHWC images, TF input scaling."""
-    x = (x - 127 / 255) / (128 / 255)
-    return net.logits(x), net.features(x, (8, 16))
-
-
-def test_jax_matches_numpy_forward(state_dict, extractor, hopper):
+@pytest.fixture(scope="module")
+def hopper_batch(hopper) -> np.ndarray:
+    """The portrait, a noisy copy (σ = 2/255) and a copy shifted by one pixel: 3×223×224×3."""
     img = _resize(hopper, *SIZE)
-    ref_logits, ref_stages = _np_forward(state_dict, img / 255.0)
-    logits, (s8, s16) = _net_outputs(extractor.net, jnp.asarray(img[None], jnp.float32) / 255.0)
-    scale = np.abs(ref_logits).max()
-    np.testing.assert_allclose(logits[0], ref_logits, atol=2e-5 * scale, rtol=0)
-    assert np.argmax(logits[0]) == np.argmax(ref_logits)
-    for s, got in ((8, s8), (16, s16)):
-        want = ref_stages[s]
-        assert got.shape[1:] == want.shape
-        assert want.shape[:2] == (-(-SIZE[0] // s), -(-SIZE[1] // s))
-        np.testing.assert_allclose(got[0], want, atol=2e-5 * np.abs(want).max(), rtol=0)
-
-
-def test_imagenet_class_and_stable_ranking(extractor, hopper):
-    """Grace Hopper in uniform is ImageNet's 'military uniform' (652), the classic torch-free
-    ground truth; top-5 must survive small noise and a one-pixel shift."""
-    img = _resize(hopper, 224, 224)
     rng = np.random.default_rng(1)
     noisy = np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
-    shifted = np.roll(img, 1, axis=(0, 1))
-    logits = np.asarray(extractor.logits(np.stack([img, noisy, shifted])))
-    top5 = [set(np.argsort(-row)[:5]) for row in logits]
-    assert np.argmax(logits[0]) == MILITARY_UNIFORM
+    return np.stack([img, noisy, np.roll(img, 1, axis=(0, 1))])
+
+
+@pytest.fixture(scope="module")
+def batch_logits(extractor, hopper_batch) -> np.ndarray:
+    return np.asarray(extractor.logits(hopper_batch))
+
+
+@pytest.fixture(scope="module")
+def batch_features(extractor, hopper_batch) -> FeatureMap:
+    return extractor(hopper_batch)
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def test_jax_matches_numpy_forward(state_dict, hopper_batch, batch_logits, batch_features):
+    ref_logits, ref_stages = _np_forward(state_dict, hopper_batch[0] / 255.0)
+    scale = np.abs(ref_logits).max()
+    np.testing.assert_allclose(batch_logits[0], ref_logits, atol=2e-5 * scale, rtol=0)
+    assert np.argmax(batch_logits[0]) == np.argmax(ref_logits)
+    # Default features: [unit(stride-8 stage), unit(bilinear ×2 upsampled stride-16 stage)].
+    s8, s16 = ref_stages[8], ref_stages[16]
+    assert s8.shape == (28, 28, 40) and s16.shape == (14, 14, 112)
+    up16 = cv2.resize(s16.astype(np.float32), (28, 28), interpolation=cv2.INTER_LINEAR)
+    feats = np.asarray(batch_features.features[0])
+    np.testing.assert_allclose(feats[..., :40], _unit(s8), atol=2e-4)
+    np.testing.assert_allclose(feats[..., 40:], _unit(up16), atol=2e-4)
+
+
+def test_imagenet_class_and_stable_ranking(batch_logits):
+    """Grace Hopper in uniform is ImageNet's 'military uniform' (652), the classic torch-free
+    ground truth; top-5 must survive small noise and a one-pixel shift."""
+    top5 = [set(np.argsort(-row)[:5]) for row in batch_logits]
+    assert np.argmax(batch_logits[0]) == MILITARY_UNIFORM
     for other in top5[1:]:
         assert MILITARY_UNIFORM in other
         assert len(top5[0] & other) >= 4
-    probs = jax.nn.softmax(logits[0])
+    probs = jax.nn.softmax(batch_logits[0])
     assert probs[MILITARY_UNIFORM] > 0.2
 
 
@@ -326,34 +336,28 @@ def test_imagenet_class_and_stable_ranking(extractor, hopper):
 # ----------------------------------------------------------------------------------------------
 
 
-def test_extractor_shapes_batching_and_levels(extractor, hopper):
-    imgs = np.stack([_resize(hopper, *SIZE), _resize(hopper[::-1], *SIZE)])
-    fmap = extractor(imgs)
+def test_extractor_shapes_batching_and_levels(extractor, hopper_batch, batch_features):
+    fmap = batch_features
     assert isinstance(fmap, FeatureMap)
-    assert fmap.features.shape == (2, 10, 13, 152) == (2, *extractor.output_shape(*SIZE), 152)
+    assert fmap.features.shape == (3, 28, 28, 152) == (3, *extractor.output_shape(*SIZE), 152)
     assert extractor.feature_dim == 152
-    assert fmap.stride == (76 / 10, 101 / 13)
+    assert fmap.stride == (223 / 28, 224 / 28)
     # Float input in [0, 1] = uint8; an image's features do not depend on its batch position.
+    imgs = hopper_batch
     np.testing.assert_allclose(extractor(imgs / 255.0).features, fmap.features, atol=1e-5)
-    np.testing.assert_allclose(extractor(imgs[::-1]).features[1], fmap.features[0], atol=1e-5)
+    np.testing.assert_allclose(extractor(imgs[::-1]).features[2], fmap.features[0], atol=1e-5)
     # Nested batch shape.
-    assert extractor(imgs[None]).features.shape == (1, 2, 10, 13, 152)
-    # Each level L2-normalised: concatenated norm is sqrt(2); the first 40 channels are the
-    # normalised stride-8 stage, the rest the upsampled normalised stride-16 stage.
+    assert extractor(imgs[None]).features.shape == (1, 3, 28, 28, 152)
+    # Each level L2-normalised: the concatenated norm is sqrt(2).
     np.testing.assert_allclose(jnp.linalg.norm(fmap.features, axis=-1), np.sqrt(2), rtol=1e-4)
-    _, (s8, s16) = _net_outputs(extractor.net, jnp.asarray(imgs[:1], jnp.float32) / 255.0)
-    unit = lambda a: a / jnp.linalg.norm(a, axis=-1, keepdims=True)  # noqa: E731
-    np.testing.assert_allclose(fmap.features[:1, ..., :40], unit(s8), atol=1e-5)
-    up = jax.image.resize(s16, (1, 10, 13, 112), method="linear")
-    np.testing.assert_allclose(fmap.features[:1, ..., 40:], unit(up), atol=1e-4)
 
 
 def test_extractor_config_stride_and_scale(extractor, hopper):
-    cfg = EfficientNetConfig(strides=(16,), input_scale=2.0, normalize_levels=False)
+    cfg = EfficientNetConfig(strides=(8,), input_scale=2.0, normalize_levels=False)
     ext = EfficientNetExtractor(net=extractor.net, config=cfg)
     fmap = ext(_resize(hopper, 32, 40))
-    assert fmap.features.shape == (4, 5, 112) == (*ext.output_shape(32, 40), 112)
-    assert fmap.stride == (8.0, 8.0)
+    assert fmap.features.shape == (8, 10, 40) == (*ext.output_shape(32, 40), 40)
+    assert fmap.stride == (4.0, 4.0)
     with pytest.raises(ValueError, match="strides"):
         EfficientNetConfig(strides=(8, 12))
 
@@ -612,3 +616,14 @@ def test_feature_config_round_trip_and_factory(tmp_path):
         FeatureConfig(backend="dino")
     with pytest.raises(ValueError, match="needs FeatureConfig.onnx"):
         FeatureConfig(backend="onnx")
+
+
+def test_extractor_chunking_matches_single_pass(extractor, rng):
+    imgs = rng.integers(0, 256, (5, 32, 40, 3), dtype=np.uint8)
+    chunked = EfficientNetExtractor(
+        net=extractor.net, config=EfficientNetConfig(strides=(2,), chunk_size=2)
+    )
+    whole = EfficientNetExtractor(
+        net=extractor.net, config=EfficientNetConfig(strides=(2,), chunk_size=8)
+    )
+    np.testing.assert_allclose(chunked(imgs).features, whole(imgs).features, atol=1e-5)

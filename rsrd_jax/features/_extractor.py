@@ -125,6 +125,8 @@ class EfficientNetConfig(eqx.Module):
     """Per-channel divisor after the mean (TF EfficientNet-Lite: 128/255)."""
     weights_path: str | None = eqx.field(static=True, default=None)
     """Legacy torch ``.pth`` with lukemelas-named weights; None: the packaged ImageNet weights."""
+    chunk_size: int = eqx.field(static=True, default=8)
+    """Images per network pass (``lax.map`` over chunks): bounds memory for many scan views."""
 
     def __check_init__(self):
         if not self.strides or any(s not in STAGE_ENDS for s in self.strides):
@@ -134,6 +136,8 @@ class EfficientNetConfig(eqx.Module):
             )
         if len(set(self.strides)) != len(self.strides):
             raise ValueError(f"EfficientNetConfig.strides={self.strides!r} has duplicates")
+        if self.chunk_size < 1:
+            raise ValueError(f"EfficientNetConfig.chunk_size={self.chunk_size} must be ≥ 1")
         if not self.input_scale > 0:
             raise ValueError(f"EfficientNetConfig.input_scale={self.input_scale!r} must be > 0")
         if len(self.mean) != 3 or len(self.std) != 3 or min(self.std) <= 0:
@@ -150,6 +154,21 @@ def _ceil_div(a: int, b: int) -> int:
 
 @eqx.filter_jit
 def _efficientnet_features(
+    net: EfficientNetLite0, x: Float[Array, "n h w 3"], config: EfficientNetConfig
+) -> Float[Array, "n h2 w2 d"]:
+    n = x.shape[0]
+    c = min(config.chunk_size, n)
+    if n == c:
+        return _features_chunk(net, x, config)
+    # Pad to whole chunks and map over them sequentially; memory ∝ chunk size, not n.
+    pad = (-n) % c
+    xs = jnp.concatenate([x, jnp.zeros((pad,) + x.shape[1:], x.dtype)]) if pad else x
+    xs = xs.reshape((-1, c) + x.shape[1:])
+    out = jax.lax.map(lambda xc: _features_chunk(net, xc, config), xs)
+    return out.reshape((-1,) + out.shape[2:])[:n]
+
+
+def _features_chunk(
     net: EfficientNetLite0, x: Float[Array, "n h w 3"], config: EfficientNetConfig
 ) -> Float[Array, "n h2 w2 d"]:
     n, h, w, _ = x.shape
