@@ -1,1 +1,36 @@
-"""Parts: grouping Gaussians into parts (mask voting, automatic grouping) and the ObjectModel (issue 4)."""
+"""Parts: the ObjectModel (Gaussians + feature field + parts) built from a scan capture (issue 4).
+
+Owns: building an ObjectModel from a capture (3DGS fit via `splat._fit`, the per-Gaussian
+feature field and its decoder, part labels by multi-view mask voting with visibility or automatic
+grouping, part centroids, ARAP boundary pairs), its files (`model.safetensors` + `model.json`)
+and rebuilding its feature extractor. Does not own rendering (`splat/`) or feature extraction
+networks (`features/`).
+"""
+
+from ._build import BuildConfig as BuildConfig, build_object_model as build_object_model, log_object_model as log_object_model
+from ._field import (
+    FieldConfig as FieldConfig,
+    fit_feature_field as fit_feature_field,
+    grid_intrinsics as grid_intrinsics,
+    render_decoded as render_decoded,
+)
+from ._labels import (
+    arap_pairs as arap_pairs,
+    auto_group as auto_group,
+    gt_part_accuracy as gt_part_accuracy,
+    knn_cleanup as knn_cleanup,
+    part_centroids as part_centroids,
+    vote_part_labels as vote_part_labels,
+)
+from ._model import (
+    MODEL_FORMAT as MODEL_FORMAT,
+    FeatureDecoder as FeatureDecoder,
+    FrozenDict as FrozenDict,
+    ObjectModel as ObjectModel,
+    decode_rendered as decode_rendered,
+    feature_backend_record as feature_backend_record,
+    load_object_model as load_object_model,
+    make_extractor as make_extractor,
+    save_object_model as save_object_model,
+)
+from ..splat._fit import FitConfig as FitConfig, FitResult as FitResult, fit_gaussians as fit_gaussians
