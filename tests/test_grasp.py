@@ -48,16 +48,24 @@ def test_alpha_shape_of_box_surface_is_watertight_with_box_volume(n):
 
 
 def test_alpha_shape_keeps_concavity_that_the_hull_fills():
-    # L-shaped solid (volume samples): 40×40×10 mm minus a 30×30 mm corner.
+    # L-shaped plate, 40×40×10 mm minus a 30×30 mm corner, sampled within 0.5 mm of its surface
+    # (as 3DGS centres are): union of boxes A = [0,40]×[0,10] and B = [0,10]×[0,40] (mm).
     rng = np.random.default_rng(1)
-    pts = rng.uniform([0, 0, 0], [0.04, 0.04, 0.01], (6000, 3))
+    pts = rng.uniform([0, 0, 0], [0.04, 0.04, 0.01], (60000, 3))
     pts = pts[~((pts[:, 0] > 0.01) & (pts[:, 1] > 0.01))]
+
+    def depth(p, hi):  # distance to the boundary of box [0, hi] from inside, -inf outside
+        d = np.minimum(p, np.asarray(hi) - p).min(-1)
+        return np.where(np.all((p >= 0) & (p <= hi), -1), d, -np.inf)
+
+    d = np.maximum(depth(pts, [0.04, 0.01, 0.01]), depth(pts, [0.01, 0.04, 0.01]))
+    pts = pts[d < 5e-4]
     true_volume = (0.04 * 0.04 - 0.03 * 0.03) * 0.01
     mesh = build_part_mesh(pts)
     hull_volume = trimesh.convex.convex_hull(pts).volume
     assert mesh.method == "alpha_shape" and mesh.watertight
-    # Volume samples stop short of the faces (~half a spacing), hence the loose lower bound.
-    assert 0.75 * true_volume < mesh.volume < 1.05 * true_volume
+    # Thin plate: edges rounded at the sample spacing (~1.7 mm) and by smoothing cost ~14 %.
+    assert 0.8 * true_volume < mesh.volume < 1.05 * true_volume
     assert hull_volume > 1.5 * true_volume  # the hull would have been wrong
     v = mesh.vertices
     assert not np.any((v[:, 0] > 0.013) & (v[:, 1] > 0.013))  # nothing inside the cut-out
@@ -79,7 +87,9 @@ def test_decimation_keeps_a_closed_manifold_and_the_shape():
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
     v, f = _decimate(np.asarray(sphere.vertices), np.asarray(sphere.faces), 200)
     assert len(f) <= 200 and _is_watertight(v, f)
-    assert trimesh.Trimesh(v, f).volume == pytest.approx(4 / 3 * np.pi * 0.02**3, rel=0.05)
+    # Still convex (its own hull) and close to the sphere.
+    assert trimesh.Trimesh(v, f).volume == pytest.approx(trimesh.convex.convex_hull(v).volume, rel=0.01)
+    assert trimesh.Trimesh(v, f).volume == pytest.approx(4 / 3 * np.pi * 0.02**3, rel=0.08)
     np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.02, atol=1e-3)
 
 
@@ -171,8 +181,16 @@ def test_grasps_on_an_alpha_shape_of_box_points():
     g = sample_antipodal_grasps(mesh, jax.random.key(3))
     assert g.result == GraspResult.success and int(np.asarray(g.base_valid).sum()) == 10
     widths = np.asarray(g.width)[np.asarray(g.valid)]
-    assert np.all(np.minimum(np.abs(widths - 0.02), np.abs(widths - 0.03)) < 3e-3)
     assert widths.max() <= 0.05
+    # Smoothing rounds the edges, and a 45° cone admits a few grasps from an edge bevel to the
+    # opposite face; most still span a box dimension.
+    near = np.minimum(np.abs(widths - 0.02), np.abs(widths - 0.03)) < 1e-3
+    assert near.mean() >= 0.8
+    # Every contact lies on the true box surface (signed distance of an axis-aligned box).
+    c = np.asarray(g.contacts).reshape(-1, 3)
+    q = np.abs(c) - np.asarray(BOX) / 2
+    sd = np.linalg.norm(np.maximum(q, 0), axis=-1) + np.minimum(q.max(-1), 0)
+    assert np.abs(sd).max() < 1.5e-3
 
 
 def _ray_reference(o, d, tri, exclude):

@@ -42,7 +42,7 @@ class MeshConfig(eqx.Module):
     max_alpha_retries: int = 4
     """Fixed alpha: how many times it may grow by `alpha_ratio` before the convex hull."""
     max_points: int = 1000
-    """Larger point sets are first averaged on a voxel grid down to at most this many points
+    """Larger point sets are first thinned on a voxel grid (one point per voxel) to at most this many points
     (speed: Delaunay and decimation dominate, and the mesh is decimated to `target_faces`
     anyway); 0 disables."""
     min_points: int = 20
@@ -210,16 +210,21 @@ def _solid(cx: _Complex, alpha: float, config: MeshConfig) -> tuple[np.ndarray, 
     return solid, coverage, float(cx.volume[solid].sum())
 
 
-def _surface(cx: _Complex, solid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boundary of the solid; non-manifold edges are closed by adding the tetrahedra around
-    them."""
+def _surface(cx: _Complex, solid: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary of the solid, repaired where solid tetrahedra meet only along an edge
+    (non-manifold edge): first fill the small empty tetrahedra around it (circumradius < 2
+    alpha), else carve the solid ones; big fills would bridge concavities."""
     solid = solid.copy()
     faces = _boundary_faces(cx.points, cx.simplices, cx.neighbors, solid)
     for _ in range(10):
         bad = _nonmanifold_edge_tets(cx.simplices, faces)
-        if len(bad) == 0 or solid[bad].all():
+        if len(bad) == 0:
             break
-        solid[bad] = True
+        fill = bad[~solid[bad] & (cx.tet_r[bad] < 2.0 * alpha)]
+        if len(fill):
+            solid[fill] = True
+        else:
+            solid[bad] = False
         faces = _boundary_faces(cx.points, cx.simplices, cx.neighbors, solid)
     return _compact(cx.points, faces)
 
@@ -306,8 +311,9 @@ def _decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int) -> tup
             z = (a11 * (a22 * b3 - b2 * a23) - a12 * (a12 * b3 - b2 * a13) + b1 * (a12 * a23 - a22 * a13)) / det
             edge = sum((pu[i] - pv[i]) ** 2 for i in range(3)) ** 0.5
             dist = ((x - mid[0]) ** 2 + (y - mid[1]) ** 2 + (z - mid[2]) ** 2) ** 0.5
-            # Keep the optimum only near the edge (it is ill-conditioned otherwise).
-            if dist < 2.0 * edge:
+            # The optimum keeps sharp edges and corners; accept it only near the edge, since on
+            # flat regions it is ill-conditioned and can slide off the sampled surface.
+            if dist < edge:
                 cands.append((x, y, z))
         errs = [_qerr(q, *c) for c in cands]
         i = min(range(len(cands)), key=errs.__getitem__)
@@ -365,8 +371,9 @@ def _decimate(vertices: np.ndarray, faces: np.ndarray, target_faces: int) -> tup
 
 
 def _voxel_downsample(points: np.ndarray, max_points: int) -> np.ndarray:
-    """Mean of the points in each occupied voxel, with the voxel grown until at most
-    max_points voxels are occupied."""
+    """One point per occupied voxel (the one nearest the voxel's mean: a real sample, so
+    surface samples stay on the surface), with the voxel grown until at most max_points voxels
+    are occupied."""
     if max_points <= 0 or len(points) <= max_points:
         return points
     lo = points.min(0)
@@ -378,9 +385,14 @@ def _voxel_downsample(points: np.ndarray, max_points: int) -> np.ndarray:
         if len(counts) <= max_points:
             break
         voxel *= 1.1
+    inverse = inverse.reshape(-1)
     sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse.reshape(-1), points)
-    return sums / counts[:, None]
+    np.add.at(sums, inverse, points)
+    dist = np.linalg.norm(points - (sums / counts[:, None])[inverse], axis=-1)
+    order = np.lexsort((dist, inverse))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = inverse[order][1:] != inverse[order][:-1]
+    return points[order[first]]
 
 
 def _convex_hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -465,7 +477,7 @@ def build_part_mesh(
                 later = range(k + 1, min(k + 1 + config.plateau_steps, len(alphas)))
                 if config.alpha is None and any(sweep(i)[2] * (1 - config.plateau_tol) > vol for i in later):
                     continue
-                v, f = _surface(cx, solid)
+                v, f = _surface(cx, solid, float(alphas[k]))
                 if not _is_watertight(v, f):
                     continue
                 alpha = float(alphas[k])
