@@ -5,7 +5,7 @@ Owns rendering of Gaussians. Does not own fitting them to images (3DGS fitting),
 (`features/`) or part grouping (`parts/`).
 """
 
-from ._composite import composite as composite
+from ._composite import ChunkLayout as ChunkLayout, composite as composite
 from ._gaussians import (
     PAD_OPACITY_LOGIT as PAD_OPACITY_LOGIT,
     Gaussians as Gaussians,
@@ -26,6 +26,7 @@ from ._project import (
 from ._raster import (
     RenderConfig as RenderConfig,
     RenderOutput as RenderOutput,
+    Bins as Bins,
     bin_gaussians as bin_gaussians,
     choose_config as choose_config,
     render as render,

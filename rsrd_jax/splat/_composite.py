@@ -1,151 +1,181 @@
-"""Front-to-back alpha compositing of fixed-capacity per-tile Gaussian lists, with a hand-written VJP.
+"""Front-to-back alpha compositing of per-tile Gaussian lists cut into fixed-size chunks, with a
+hand-written VJP.
 
-Layout: `[tiles, pixels-per-tile, K]` with the list axis K minor, so that
-- σ is evaluated in tile-centred pixel coordinates (small numbers, little float32 cancellation);
-- the cumulative sum of log(1 − α) along K is a blocked triangular matmul (XLA's CPU cumsum is slow);
-- channels are one batched GEMM `w[t, p, k] · feat[t, k, c]`, and so are their transposes.
+Each tile's depth-sorted list is split into chunks of B entries; only non-empty chunks exist, so
+the work follows the real per-tile counts (a dense `[tiles, K]` layout would pay the busiest tile's
+count everywhere). Per chunk the layout is `[chunks, pixels-per-tile, B]` with the list axis minor:
+- σ is one GEMM of 6 per-entry coefficients against the pixel basis [1, u, v, u², uv, v²] in
+  tile-centred coordinates (small numbers, little float32 cancellation), with −log(o) folded into
+  the constant term so that α = min(MAX_ALPHA, e^(−σ'));
+- the cumulative sum of log(1 − α) along a chunk is a B×B triangular matmul, and the carry from
+  earlier chunks of the same tile is a short static loop over chunk offsets;
+- channels are one batched GEMM `w[c, p, k] · feat[c, k, :]`, summed per tile.
 
-Forward (gsplat's rules): α = min(MAX_ALPHA, o·e^(−σ)); a pair is kept if σ ≥ 0 and
-α ≥ ALPHA_THRESHOLD; L_k = Σ_{j≤k, kept} log(1 − α_j); the pair is *used* if kept and
-L_k > log(TRANSMITTANCE_THRESHOLD) (inclusive transmittance only falls, so this reproduces the
-exclusive stop); weight w_k = used·α_k·exp(L_k − l_k); out = Σ_k w_k·feat_k.
+Forward (gsplat's rules): α = min(MAX_ALPHA, o·e^(−σ)); a pair is kept if α ≥ ALPHA_THRESHOLD;
+L_k = Σ_{j≤k, kept} log(1 − α_j); the pair is *used* if kept and L_k > log(TRANSMITTANCE_THRESHOLD)
+(inclusive transmittance only falls, so this reproduces gsplat's exclusive stop);
+w_k = used·α_k·exp(L_k − l_k); out = Σ_k w_k·feat_k. (gsplat also skips σ < 0, which only rounding
+can produce for a positive-definite conic; here such a pair gets α = min(MAX_ALPHA, o).)
 
-Backward (the analytic form of gsplat's replay, in vectorised form): with g_k = ⟨dout, feat_k⟩ and
-S_k = Σ_{j>k} w_j g_j, dα_k = used·(T_k g_k − S_k / (1 − α_k)); dσ = −α·dα where α is not capped;
-dfeat = wᵀ·dout. The reductions over pixels are GEMMs against the basis [1, u, v, u², uv, v²].
-Masks (kept, used, capped) carry no gradient, as in gsplat.
+Backward (the analytic form of gsplat's replay, vectorised): with g_k = ⟨dout, feat_k⟩ and
+S_k = Σ_{j>k} w_j g_j over the tile's list, dα_k = used·(T_k g_k − S_k / (1 − α_k)), so
+dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout; the reductions over pixels are GEMMs against
+the basis. Masks (kept, used, capped) carry no gradient, as in gsplat.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._project import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
 
 _LOG_T_STOP = math.log(TRANSMITTANCE_THRESHOLD)
+_EMPTY_SIGMA = 1e4  # σ' of an empty slot: e^(−1e4) == 0
 
 
-def pixel_offsets(tile_size: int, dtype) -> tuple[jax.Array, jax.Array]:
-    """Tile-centred coordinates (u, v) of the pixel centres of a tile, row-major, shape (P,)."""
+class ChunkLayout(NamedTuple):
+    """Where each chunk sits (all int32; produced by binning, no gradient)."""
+
+    tile: jax.Array
+    """(NC,) tile of each chunk (any valid tile for unused chunks)."""
+    index: jax.Array
+    """(NC,) position of the chunk in its tile's list (0 = nearest)."""
+    count: jax.Array
+    """(NC,) number of chunks of that tile (0 for unused chunks)."""
+    last: jax.Array
+    """(tiles,) index of each tile's last chunk (−1 if the tile has none)."""
+
+
+def pixel_basis(tile_size: int, dtype) -> jax.Array:
+    """(P, 6) basis [1, u, v, u², uv, v²] at tile-centred pixel-centre coordinates, row-major."""
     r = jnp.arange(tile_size, dtype=dtype) + 0.5 - 0.5 * tile_size
     v, u = jnp.meshgrid(r, r, indexing="ij")
-    return u.reshape(-1), v.reshape(-1)
+    u, v = u.reshape(-1), v.reshape(-1)
+    return jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
 
 
-def _block_size(k: int) -> int:
-    for b in (32, 16, 8):
-        if k % b == 0:
-            return b
-    return k
+def _chunk_carry(tot: jax.Array, layout: ChunkLayout, max_chunks_per_tile: int, reverse: bool):
+    """Σ of `tot` over the earlier (or, reversed, later) chunks of the same tile, (NC, P)."""
+    nc = tot.shape[0]
+    carry = jnp.zeros_like(tot)
+    for d in range(1, max_chunks_per_tile):
+        if reverse:
+            src = jnp.concatenate([tot[d:], jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype)])[:nc]
+            ok = layout.index + d < layout.count
+        else:
+            src = jnp.concatenate([jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype), tot[:-d]])[:nc]
+            ok = layout.index >= d
+        carry = carry + jnp.where(ok[:, None], src, 0.0)
+    return carry
 
 
-def blocked_cumsum(x: jax.Array, reverse: bool = False) -> jax.Array:
-    """Inclusive cumulative sum along the last axis as a blocked triangular matmul."""
-    *lead, k = x.shape
-    b = _block_size(k)
-    nb = k // b
-    xb = x.reshape(*lead, nb, b)
-    idx = jnp.arange(b)
-    # within[i] = Σ_j xb[j]·tri[j, i]; forward: j ≤ i, reverse: j ≥ i.
-    tri = (idx[:, None] >= idx[None, :]) if reverse else (idx[:, None] <= idx[None, :])
-    within = xb @ tri.astype(x.dtype)
-    if nb > 1:
-        jb = jnp.arange(nb)
-        strict = (jb[:, None] > jb[None, :]) if reverse else (jb[:, None] < jb[None, :])
-        carry = jnp.sum(xb, axis=-1) @ strict.astype(x.dtype)
-        within = within + carry[..., None]
-    return within.reshape(*lead, k)
+def _sigma(params: jax.Array, tile_size: int) -> jax.Array:
+    """σ' = σ − log o for every (chunk, pixel, entry) as one GEMM."""
+    m, n, a, b, c, o = (params[..., i] for i in range(6))
+    valid = o > 0
+    logo = jnp.log(jnp.where(valid, o, 1.0))
+    c0 = jnp.where(valid, 0.5 * a * m * m + b * m * n + 0.5 * c * n * n - logo, _EMPTY_SIGMA)
+    coef = jnp.stack([c0, -(a * m + b * n), -(b * m + c * n), 0.5 * a, b, 0.5 * c], axis=-1)
+    coef = jnp.where(valid[..., None], coef, jnp.asarray([_EMPTY_SIGMA, 0, 0, 0, 0, 0], coef.dtype))
+    return jnp.einsum("pj,ckj->cpk", pixel_basis(tile_size, params.dtype), coef)
 
 
-def _alpha(params: jax.Array, tile_size: int):
-    """α (capped), kept mask, capped mask for every (tile, pixel, entry)."""
-    u, v = pixel_offsets(tile_size, params.dtype)
-    m, n, a, b, c, o = (params[:, None, :, i] for i in range(6))
-    dx = m - u[None, :, None]
-    dy = n - v[None, :, None]
-    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
-    raw = o * jnp.exp(-sigma)
-    capped = raw > MAX_ALPHA
+def _tri(b: int, reverse: bool, dtype) -> jax.Array:
+    i = jnp.arange(b)
+    return ((i[:, None] >= i[None, :]) if reverse else (i[:, None] <= i[None, :])).astype(dtype)
+
+
+def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc: int):
+    b = params.shape[1]
+    raw = jnp.exp(-_sigma(params, tile_size))
     alpha = jnp.minimum(raw, MAX_ALPHA)
-    keep = (sigma >= 0) & (alpha >= ALPHA_THRESHOLD)
-    return alpha, keep, capped
-
-
-def _forward(params, feat, tile_size):
-    alpha, keep, capped = _alpha(params, tile_size)
-    l = jnp.where(keep, jnp.log1p(-alpha), 0.0)
-    L = blocked_cumsum(l)
+    keep = alpha >= ALPHA_THRESHOLD
+    l = jnp.where(keep, jnp.log(1.0 - alpha), 0.0)
+    within = l @ _tri(b, False, l.dtype)
+    L = within + _chunk_carry(within[..., -1], layout, kc, reverse=False)[..., None]
     used = keep & (L > _LOG_T_STOP)
     w = jnp.where(used, alpha * jnp.exp(L - l), 0.0)
-    out = jnp.einsum("tpk,tkc->tpc", w, feat)
-    # A tile whose every pixel hit the transmittance stop cannot be changed by dropped entries.
-    saturated = jnp.all(L[..., -1] <= _LOG_T_STOP, axis=-1)
-    # Signed α of used pairs: negative where capped (no σ/opacity gradient there).
-    alpha_s = jnp.where(used, jnp.where(capped, -alpha, alpha), 0.0)
-    return out, saturated, (L - l, used), (w, alpha_s)
+    out_c = jnp.einsum("cpk,ckd->cpd", w, feat)
+    out = jax.ops.segment_sum(out_c, layout.tile, n_tiles, indices_are_sorted=True)
+    sat_c = jnp.all(L[..., -1] <= _LOG_T_STOP, axis=-1)
+    saturated = jnp.where(layout.last >= 0, sat_c[jnp.maximum(layout.last, 0)], True)
+    # Backward residual r = α/(1 − α) where used and not capped, −1 where capped (no σ gradient).
+    r = jnp.where(used, jnp.where(raw > MAX_ALPHA, -1.0, alpha / (1.0 - alpha)), 0.0)
+    return out, saturated, (L - l, used), (w, r)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def composite(params: jax.Array, feat: jax.Array, tile_size: int):
-    """Composites per-tile lists.
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3, 4, 5))
+def composite(
+    params: jax.Array,
+    feat: jax.Array,
+    layout: ChunkLayout,
+    n_tiles: int,
+    tile_size: int,
+    max_chunks_per_tile: int,
+):
+    """Composites chunked per-tile lists.
 
     Args:
-        params: (tiles, K, 6) per entry: mean offset from the tile centre (m, n) in pixels, conic
-            (a, b, c) in 1/px², opacity o (0 marks an empty slot). Entries sorted near to far.
-        feat: (tiles, K, C) channels to composite.
-        tile_size: tile side in pixels (P = tile_size²).
+        params: (NC, B, 6) per entry: mean offset from its tile's centre (m, n) in pixels, conic
+            (a, b, c) in 1/px², opacity o (0 marks an empty slot). Chunks of a tile are
+            consecutive and ordered near to far, as are the entries inside a chunk.
+        feat: (NC, B, C) channels to composite.
+        layout: chunk → tile bookkeeping (`ChunkLayout`).
+        n_tiles: number of tiles T; tile_size: tile side (P = tile_size²);
+        max_chunks_per_tile: static bound on chunks per tile.
 
     Returns:
-        (out (tiles, P, C), saturated (tiles,) bool): Σ w·feat per pixel, and whether every pixel
-        of the tile reached the transmittance stop within the list.
+        (out (T, P, C), saturated (T,) bool): Σ w·feat per pixel, and whether every pixel of the
+        tile reached the transmittance stop within its list (dropped entries cannot matter).
     """
-    out, saturated, _, _ = _forward(params, feat, tile_size)
+    out, saturated, _, _ = _forward(params, feat, layout, n_tiles, tile_size, max_chunks_per_tile)
     return out, saturated
 
 
-def composite_stats(params: jax.Array, feat: jax.Array, tile_size: int):
-    """Counts without gradient: contributing entries per pixel (tiles, P), and entries each pixel
-    walks before its stop (tiles, P), for capacity choice and benchmarks."""
-    _, _, (L_excl, used), _ = _forward(params, feat, tile_size)
-    n_used = jnp.sum(used, axis=-1)
-    n_walked = jnp.sum(L_excl > _LOG_T_STOP, axis=-1)
-    return n_used, n_walked
+def composite_stats(params, feat, layout, n_tiles, tile_size, max_chunks_per_tile):
+    """No-gradient counts: contributing entries per pixel (T, P) and list entries each tile's
+    pixels walk before their stop (T,), for capacity choice and benchmarks."""
+    _, _, (L_excl, used), _ = _forward(params, feat, layout, n_tiles, tile_size, max_chunks_per_tile)
+    n_used = jax.ops.segment_sum(jnp.sum(used, -1), layout.tile, n_tiles, indices_are_sorted=True)
+    walked_c = jnp.sum(L_excl > _LOG_T_STOP, axis=-1)  # (NC, P)
+    walked = jax.ops.segment_sum(walked_c, layout.tile, n_tiles, indices_are_sorted=True)
+    return n_used, jnp.max(walked, axis=-1)
 
 
-def _composite_fwd(params, feat, tile_size):
-    out, saturated, _, (w, alpha_s) = _forward(params, feat, tile_size)
-    return (out, saturated), (params, feat, w, alpha_s)
+def _composite_fwd(params, feat, layout, n_tiles, tile_size, kc):
+    out, saturated, _, (w, r) = _forward(params, feat, layout, n_tiles, tile_size, kc)
+    return (out, saturated), (params, feat, layout, w, r)
 
 
-def _composite_bwd(tile_size, res, cts):
-    params, feat, w, alpha_s = res
-    dout = cts[0]
-    g = jnp.einsum("tpc,tkc->tpk", dout, feat)
-    dfeat = jnp.einsum("tpk,tpc->tkc", w, dout)
+def _composite_bwd(n_tiles, tile_size, kc, res, cts):
+    params, feat, layout, w, r = res
+    b = params.shape[1]
+    dout = cts[0][layout.tile]  # (NC, P, C)
+    g = jnp.einsum("cpd,ckd->cpk", dout, feat)
+    dfeat = jnp.einsum("cpk,cpd->ckd", w, dout)
     wg = w * g
-    S = blocked_cumsum(wg, reverse=True) - wg  # Σ_{j>k} w_j g_j
-    alpha = jnp.abs(alpha_s)
-    used = alpha_s != 0
-    safe_a = jnp.where(used, alpha, 0.5)
-    dalpha = jnp.where(used, (w / safe_a) * g - S / (1.0 - safe_a), 0.0)
-    dsigma = jnp.where(alpha_s > 0, -alpha * dalpha, 0.0)
-    u, v = pixel_offsets(tile_size, params.dtype)
-    basis = jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (P, 6)
-    Q = jnp.einsum("tpk,pj->tkj", dsigma, basis)
+    within = wg @ _tri(b, True, wg.dtype)
+    S = within - wg + _chunk_carry(within[..., 0], layout, kc, reverse=True)[..., None]
+    # dσ = −α·dα with dα = T·g − S/(1 − α) and α·T = w.
+    dsigma = jnp.where(r >= 0, r * S - wg, 0.0)
+    Q = jnp.einsum("cpk,pj->ckj", dsigma, pixel_basis(tile_size, params.dtype))
     q0, q1, q2, q3, q4, q5 = (Q[..., i] for i in range(6))
-    m, n, a, b, c, o = (params[..., i] for i in range(6))
+    m, n, a, bb, c, o = (params[..., i] for i in range(6))
     sx = m * q0 - q1
     sy = n * q0 - q2
     sxx = m * m * q0 - 2.0 * m * q1 + q3
     sxy = m * n * q0 - m * q2 - n * q1 + q4
     syy = n * n * q0 - 2.0 * n * q2 + q5
     do = jnp.where(o > 0, -q0 / jnp.where(o > 0, o, 1.0), 0.0)
-    dparams = jnp.stack([a * sx + b * sy, b * sx + c * sy, 0.5 * sxx, sxy, 0.5 * syy, do], -1)
-    return dparams, dfeat
+    dparams = jnp.stack([a * sx + bb * sy, bb * sx + c * sy, 0.5 * sxx, sxy, 0.5 * syy, do], -1)
+    zero_layout = jax.tree.map(lambda x: np.zeros(x.shape, jax.dtypes.float0), layout)
+    return dparams, dfeat, zero_layout
 
 
 composite.defvjp(_composite_fwd, _composite_bwd)

@@ -365,7 +365,8 @@ def _run_block(
     def body(i, carry):
         p, s, acc, cnt, tot = carry
         v = views[i]
-        bg = jax.random.uniform(keys[i], (3,))
+        # random background with masks (forces alpha = 0 off the object); black without masks
+        bg = jax.random.uniform(keys[i], (3,)) if masks is not None else jnp.zeros(3)
         (loss, cam), grads = jax.value_and_grad(loss_fn, has_aux=True)(p, v, bg)
         # view-space positional gradient in NDC units (3DGS): dL/dndc = dL/dx_cam · z/f · size/2
         R = cam.T_cam_world.rotation().as_matrix()

@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry import Camera
-from ._composite import composite, composite_stats
+from ._composite import ChunkLayout, composite, composite_stats
 from ._gaussians import Gaussians
 from ._project import Projected, project_gaussians
 
@@ -30,12 +30,20 @@ _trace_count = 0  # incremented each time `render` is traced (tests check it sta
 
 
 class RenderConfig(eqx.Module):
-    """Static rasterizer options (all fields fix shapes or branches; changing one recompiles)."""
+    """Static rasterizer options (all fields fix shapes or branches; changing one recompiles).
+
+    Use `choose_config` to size `capacity`, `max_chunks` and `max_pairs` for a scene.
+    """
 
     tile_size: int = eqx.field(static=True, default=8)
     """Tile side in pixels. 8 is fastest on CPU (fewer wasted pairs than gsplat's 16)."""
-    capacity: int = eqx.field(static=True, default=128)
-    """K: entries (nearest Gaussians) kept per tile; a multiple of 8. Choose with `choose_config`."""
+    chunk_size: int = eqx.field(static=True, default=32)
+    """B: list entries per chunk; a tile's list is processed in ⌈count/B⌉ chunks."""
+    capacity: int = eqx.field(static=True, default=256)
+    """K: most entries (nearest Gaussians) kept per tile; a multiple of `chunk_size`."""
+    max_chunks: int = eqx.field(static=True, default=2048)
+    """Budget of chunks per image (Σ over tiles of ⌈min(count, K)/B⌉); chunks beyond it are
+    dropped (their tiles are reported in `tile_truncated`, the excess in `chunks_overflow`)."""
     max_pairs: int = eqx.field(static=True, default=1 << 16)
     """Budget of (Gaussian, tile) pairs per image; the farthest pairs beyond it are dropped and
     counted in `RenderOutput.pairs_overflow`."""
@@ -43,10 +51,19 @@ class RenderConfig(eqx.Module):
     """Also return per-pixel contributor counts and per-tile needed capacity (slower)."""
 
     def __check_init__(self):
-        if self.tile_size < 1 or self.capacity < 8 or self.capacity % 8 or self.max_pairs < 1:
+        ok = (
+            self.tile_size >= 1
+            and self.chunk_size >= 1
+            and self.capacity >= self.chunk_size
+            and self.capacity % self.chunk_size == 0
+            and self.max_chunks >= 1
+            and self.max_pairs >= 1
+        )
+        if not ok:
             raise ValueError(
-                "RenderConfig needs tile_size ≥ 1, capacity a positive multiple of 8 and "
-                f"max_pairs ≥ 1; got {self.tile_size}, {self.capacity}, {self.max_pairs}"
+                "RenderConfig needs positive sizes and capacity a multiple of chunk_size; got "
+                f"tile_size={self.tile_size}, chunk_size={self.chunk_size}, "
+                f"capacity={self.capacity}, max_chunks={self.max_chunks}, max_pairs={self.max_pairs}"
             )
 
 
@@ -66,11 +83,13 @@ class RenderOutput(eqx.Module):
     tile_counts: Int[Array, "ty tx"]
     """Candidate Gaussians per tile (within the pair budget)."""
     tile_overflow: Int[Array, "ty tx"]
-    """Candidates dropped per tile because the list holds only `capacity` entries."""
+    """Candidates dropped per tile because a list holds at most `capacity` entries."""
     tile_truncated: Bool[Array, "ty tx"]
-    """Tiles whose dropped candidates could have contributed (render differs from exact)."""
+    """Tiles where dropped candidates or chunks could have contributed (render not exact)."""
     pairs_overflow: Int[Array, ""]
     """(Gaussian, tile) pairs dropped because they exceed `max_pairs`."""
+    chunks_overflow: Int[Array, ""]
+    """Chunks dropped because they exceed `max_chunks`."""
     n_contrib: Int[Array, "h w"] | None = None
     """With `stats`: Gaussians that contributed to each pixel."""
     tile_needed: Int[Array, "ty tx"] | None = None
@@ -94,16 +113,70 @@ def _depth_order(depth: jax.Array, visible: jax.Array) -> jax.Array:
     return order
 
 
-def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig):
-    """Per-tile lists of the nearest `capacity` Gaussians overlapping each tile (no gradient).
+def _expand(counts: jax.Array, size: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """For `size` slots laid out as consecutive runs of `counts[i]` slots per owner i: each
+    slot's owner, its index within the run, and the run offsets."""
+    off = jnp.cumsum(counts) - counts
+    owner = jnp.arange(counts.shape[0], dtype=jnp.int32)
+    marks = jnp.full((size,), -1, jnp.int32).at[off].max(jnp.where(counts > 0, owner, -1), mode="drop")
+    who = jnp.maximum(jax.lax.cummax(marks), 0)
+    return who, jnp.arange(size, dtype=jnp.int32) - off[who], off
 
-    Returns:
-        ids: (tiles, K) int32 Gaussian indices, N marks an empty slot;
-        counts: (tiles,) candidates per tile (within the pair budget);
-        total: total pairs (may exceed `max_pairs`).
-    """
+
+class Bins(eqx.Module):
+    """Result of `bin_gaussians` (integers, no gradient)."""
+
+    ids: Int[Array, "nc b"]
+    """Gaussian index of every chunk entry (N marks an empty slot)."""
+    layout: ChunkLayout
+    """Chunk → tile bookkeeping."""
+    counts: Int[Array, " t"]
+    """Candidates per tile (within the pair budget)."""
+    lost_chunks: Bool[Array, " t"]
+    """Tiles that lost chunks to the chunk budget."""
+    total_pairs: Int[Array, ""]
+    """All (Gaussian, tile) pairs (may exceed `max_pairs`)."""
+    total_chunks: Int[Array, ""]
+    """All chunks needed (may exceed `max_chunks`)."""
+
+
+def _ellipse_meets_tile(proj: Projected, g, tx, ty, ts: int):
+    """Whether any pixel centre of tile (tx, ty) has α ≥ ALPHA_THRESHOLD for Gaussian g, i.e.
+    σ ≤ log(255·o) somewhere on the rectangle of pixel centres (gsplat's "AccuTile" idea with
+    the exact per-Gaussian threshold). The minimum of the convex σ over the rectangle is 0 if
+    the mean is inside, else on an edge, where it is a clamped 1D quadratic minimum."""
+    a, b, c = proj.conic[g, 0], proj.conic[g, 1], proj.conic[g, 2]
+    thr = jnp.log(jnp.maximum(255.0 * proj.opacity[g], 1e-30))
+    lo_x = tx * ts + 0.5 - proj.xy[g, 0]
+    hi_x = lo_x + (ts - 1)
+    lo_y = ty * ts + 0.5 - proj.xy[g, 1]
+    hi_y = lo_y + (ts - 1)
+    a_s = jnp.where(a > 0, a, 1.0)
+    c_s = jnp.where(c > 0, c, 1.0)
+
+    def sig(dx, dy):
+        return 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+
+    def on_vertical(dx):  # edge x = dx, y free in [lo_y, hi_y]
+        return sig(dx, jnp.clip(-b * dx / c_s, lo_y, hi_y))
+
+    def on_horizontal(dy):
+        return sig(jnp.clip(-b * dy / a_s, lo_x, hi_x), dy)
+
+    edge = jnp.minimum(
+        jnp.minimum(on_vertical(lo_x), on_vertical(hi_x)),
+        jnp.minimum(on_horizontal(lo_y), on_horizontal(hi_y)),
+    )
+    inside = (lo_x <= 0) & (hi_x >= 0) & (lo_y <= 0) & (hi_y >= 0)
+    smin = jnp.where(inside, 0.0, edge)
+    return smin <= thr * (1.0 + 1e-3) + 1e-3
+
+
+def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins:
+    """Per-tile near-to-far lists of the Gaussians whose boxes overlap each tile, cut into
+    chunks (no gradient). See the module docstring."""
     proj = jax.lax.stop_gradient(proj)
-    ts, K, M = config.tile_size, config.capacity, config.max_pairs
+    ts, B, K, NC, M = config.tile_size, config.chunk_size, config.capacity, config.max_chunks, config.max_pairs
     TX, TY = _grid(camera, ts)
     n_tiles = TX * TY
     n = proj.depth.shape[0]
@@ -120,19 +193,17 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig):
     nx = x1 - x0 + 1
     n_pairs = jnp.where(proj.visible, nx * (y1 - y0 + 1), 0)
 
+    # Pairs in depth order, then a stable grouping by tile (one integer sort).
     order = _depth_order(proj.depth, proj.visible)
     cnt = n_pairs[order]
-    off = jnp.cumsum(cnt) - cnt
+    r, local, _ = _expand(cnt, M)
     total = jnp.sum(cnt)
-    # Expand pairs: slot s belongs to the rank-r Gaussian with off[r] ≤ s < off[r] + cnt[r].
-    rank = jnp.arange(n, dtype=jnp.int32)
-    marks = jnp.full((M,), -1, jnp.int32).at[off].max(jnp.where(cnt > 0, rank, -1), mode="drop")
-    r = jnp.maximum(jax.lax.cummax(marks), 0)
     s = jnp.arange(M, dtype=jnp.int32)
-    local = s - off[r]
     g = order[r]
-    tile = (y0[g] + local // nx[g]) * TX + x0[g] + local % nx[g]
-    valid = s < total
+    tx = x0[g] + local % nx[g]
+    ty = y0[g] + local // nx[g]
+    tile = ty * TX + tx
+    valid = (s < total) & _ellipse_meets_tile(proj, g, tx, ty, ts)
     if n_tiles * M < 2**31 - 1:
         key = jnp.where(valid, tile * M + s, jnp.iinfo(jnp.int32).max)
         skey = jnp.sort(key)
@@ -145,26 +216,45 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig):
             q = jnp.arange(n_tiles + 1, dtype=jnp.int64) << 32
             bounds = jnp.searchsorted(skey, q).astype(jnp.int32)
             slot = (skey & 0xFFFFFFFF).astype(jnp.int32)
-    counts = bounds[1:] - bounds[:-1]
-    j = jnp.arange(K, dtype=jnp.int32)
-    pos = jnp.minimum(bounds[:-1, None] + j[None, :], M - 1)
+    counts = (bounds[1:] - bounds[:-1]).astype(jnp.int32)
+
+    # Chunks: tile t owns ⌈min(count, K)/B⌉ consecutive chunks.
+    kept = jnp.minimum(counts, K)
+    n_chunks = (kept + B - 1) // B
+    ct, cj, coff = _expand(n_chunks, NC)
+    total_chunks = jnp.sum(n_chunks)
+    c_valid = jnp.arange(NC) < total_chunks
+    e = cj[:, None] * B + jnp.arange(B, dtype=jnp.int32)[None, :]
+    pos = jnp.minimum(bounds[ct][:, None] + e, M - 1)
     gid = g[jnp.clip(slot[pos], 0, M - 1)]
-    ids = jnp.where(j[None, :] < counts[:, None], gid, n)
-    return ids, counts, total
+    ids = jnp.where(c_valid[:, None] & (e < kept[ct][:, None]), gid, n)
+    last = coff + n_chunks - 1
+    layout = ChunkLayout(
+        tile=ct,
+        index=cj,
+        count=jnp.where(c_valid, n_chunks[ct], 0),
+        last=jnp.where((n_chunks > 0) & (last < NC), last, -1),
+    )
+    return Bins(
+        ids=ids,
+        layout=layout,
+        counts=counts,
+        lost_chunks=(n_chunks > 0) & (last >= NC),
+        total_pairs=total,
+        total_chunks=total_chunks,
+    )
 
 
-def _tile_inputs(gaussians: Gaussians, proj: Projected, ids, camera: Camera, ts: int):
-    """Gathers (tiles, K, 6) geometry and (tiles, K, C) channels of the listed Gaussians."""
-    TX, TY = _grid(camera, ts)
+def _tile_inputs(gaussians: Gaussians, proj: Projected, bins: Bins, camera: Camera, ts: int):
+    """Gathers (NC, B, 6) geometry and (NC, B, C) channels of the listed Gaussians."""
+    TX, _ = _grid(camera, ts)
     dtype = proj.xy.dtype
     pad = lambda x: jnp.concatenate([x, jnp.zeros((1, *x.shape[1:]), x.dtype)], 0)  # noqa: E731
-    tile = jnp.arange(TX * TY)
-    tcx = ((tile % TX) * ts + 0.5 * ts).astype(dtype)
-    tcy = ((tile // TX) * ts + 0.5 * ts).astype(dtype)
+    tile = bins.layout.tile
+    centre = jnp.stack([(tile % TX) * ts + 0.5 * ts, (tile // TX) * ts + 0.5 * ts], -1)
     geo = jnp.concatenate([proj.xy, proj.conic, proj.opacity[:, None]], axis=-1)
-    geo = pad(geo)[ids]
-    centre = jnp.stack([tcx, tcy], -1)[:, None, :]
-    params = jnp.concatenate([geo[..., :2] - centre, geo[..., 2:]], axis=-1)
+    geo = pad(geo)[bins.ids]
+    params = jnp.concatenate([geo[..., :2] - centre.astype(dtype)[:, None, :], geo[..., 2:]], -1)
     chans = jnp.concatenate(
         [
             gaussians.colours.astype(dtype),
@@ -174,7 +264,7 @@ def _tile_inputs(gaussians: Gaussians, proj: Projected, ids, camera: Camera, ts:
         ],
         axis=-1,
     )
-    return params, pad(chans)[ids]
+    return params, pad(chans)[bins.ids]
 
 
 def _untile(x: jax.Array, camera: Camera, ts: int) -> jax.Array:
@@ -195,14 +285,14 @@ def render(
 ) -> RenderOutput:
     """Renders RGB, features, depth and alpha of `gaussians` seen by `camera` in one pass.
 
-    Differentiable (plain autodiff outside a hand-written compositing VJP) with respect to every
+    Differentiable (plain autodiff around a hand-written compositing VJP) with respect to every
     float leaf of `gaussians` and the camera pose; binning and the compositing masks carry no
     gradient. Jitted once per (image size, N, F, config); vmap it over cameras or poses.
 
     Args:
         gaussians: N Gaussians in the world frame (apply part poses first).
         camera: intrinsics (static size H×W) and `T_cam_world` (OpenCV axes).
-        config: tile size, per-tile capacity K, pair budget (see `choose_config`).
+        config: tile size and static budgets (see `choose_config`).
         background: optional RGB added as (1 − alpha)·background.
 
     Returns:
@@ -212,41 +302,44 @@ def render(
     _trace_count += 1
     ts = config.tile_size
     TX, TY = _grid(camera, ts)
+    kc = config.capacity // config.chunk_size
     F = gaussians.num_features
     proj = project_gaussians(gaussians, camera)
-    ids, counts, total = bin_gaussians(proj, camera, config)
-    params, chans = _tile_inputs(gaussians, proj, ids, camera, ts)
-    out, saturated = composite(params, chans, ts)
+    bins = bin_gaussians(proj, camera, config)
+    params, chans = _tile_inputs(gaussians, proj, bins, camera, ts)
+    out, saturated = composite(params, chans, bins.layout, TX * TY, ts, kc)
     img = _untile(out, camera, ts)
     rgb, feats = img[..., :3], img[..., 3 : 3 + F]
     d_acc, alpha = img[..., 3 + F], img[..., 4 + F]
     if background is not None:
         rgb = rgb + (1.0 - alpha)[..., None] * jnp.asarray(background, rgb.dtype)
-    overflow = jnp.maximum(counts - config.capacity, 0)
-    truncated = (overflow > 0) & ~saturated
+    overflow = jnp.maximum(bins.counts - config.capacity, 0)
+    truncated = ((overflow > 0) & ~saturated) | bins.lost_chunks
     n_contrib = tile_needed = None
     if config.stats:
         n_used, n_walked = composite_stats(
-            jax.lax.stop_gradient(params), jax.lax.stop_gradient(chans), ts
+            jax.lax.stop_gradient(params), jax.lax.stop_gradient(chans), bins.layout, TX * TY, ts, kc
         )
         n_contrib = _untile(n_used, camera, ts)
-        tile_needed = jnp.minimum(jnp.max(n_walked, axis=-1), counts).reshape(TY, TX)
+        tile_needed = jnp.minimum(n_walked, bins.counts).reshape(TY, TX)
     return RenderOutput(
         rgb=rgb,
         features=feats,
         depth=d_acc / jnp.maximum(alpha, 1e-10),
         depth_accum=d_acc,
         alpha=alpha,
-        tile_counts=counts.reshape(TY, TX),
+        tile_counts=bins.counts.reshape(TY, TX),
         tile_overflow=overflow.reshape(TY, TX),
         tile_truncated=truncated.reshape(TY, TX),
-        pairs_overflow=jnp.maximum(total - config.max_pairs, 0),
+        pairs_overflow=jnp.maximum(bins.total_pairs - config.max_pairs, 0),
+        chunks_overflow=jnp.maximum(bins.total_chunks - config.max_chunks, 0),
         n_contrib=n_contrib,
         tile_needed=tile_needed,
     )
 
 
 _bin_jit = jax.jit(bin_gaussians, static_argnums=2)
+_project_jit = jax.jit(project_gaussians)
 
 
 def _round_up(x: float, m: int) -> int:
@@ -255,23 +348,26 @@ def _round_up(x: float, m: int) -> int:
 
 def choose_config(
     gaussians: Gaussians,
-    cameras: Sequence[Camera],
+    cameras: Camera | Sequence[Camera],
     tile_size: int = 8,
+    chunk_size: int = 32,
     headroom: float = 1.25,
     exact: bool = False,
 ) -> RenderConfig:
-    """Host-side choice of the per-tile capacity K and the pair budget for a scene and cameras.
+    """Host-side choice of the static budgets (K, chunks, pairs) for a scene and its cameras.
 
-    Renders each camera once with capacities large enough to be exact and measures, per tile,
-    how many list entries the pixels walk before the transmittance stop (`exact=False`, the
-    smallest K that renders these views exactly) or how many candidates there are at all
-    (`exact=True`, no list is ever cut). K is that maximum times `headroom` (for poses that
-    move), rounded up to a multiple of 16; `max_pairs` likewise from the largest pair count.
+    Renders each camera once with budgets large enough to be exact and measures, per tile, how
+    many list entries the pixels walk before the transmittance stop (`exact=False`: the smallest
+    K that renders these views exactly) or how many candidates there are (`exact=True`: no list
+    is ever cut). K is that maximum times `headroom` (for poses that move), rounded up to a
+    multiple of `chunk_size`; `max_chunks` and `max_pairs` are the largest totals times
+    `headroom`.
 
     Args:
         gaussians: the posed Gaussians (world frame).
-        cameras: one or more cameras (each unbatched) the scene will be rendered from.
+        cameras: one camera or a sequence of (unbatched) cameras.
         tile_size: tile side in pixels.
+        chunk_size: list entries per chunk.
         headroom: multiplicative margin (≥ 1).
         exact: size K from candidate counts instead of the transmittance stop.
     """
@@ -279,25 +375,33 @@ def choose_config(
         raise ValueError(f"headroom must be ≥ 1, got {headroom}")
     if isinstance(cameras, Camera):
         cameras = [cameras]
-    need_k, need_m = 8, 1
+    B = chunk_size
+    need_k, need_m, all_counts = B, 1, []
     for cam in cameras:
-        proj = jax.jit(project_gaussians)(gaussians, cam)
+        proj = _project_jit(gaussians, cam)
         budget = _round_up(4 * gaussians.num_gaussians, 1024)
         while True:
-            big = RenderConfig(tile_size, 8, budget)
-            _, counts, total = _bin_jit(proj, cam, big)
-            total = int(total)
+            bins = _bin_jit(proj, cam, RenderConfig(tile_size, B, B, 1, budget))
+            total = int(bins.total_pairs)
             if total <= budget:
                 break
             budget = _round_up(total, 1024)
-        kmax = _round_up(int(jnp.max(counts)) + 1, 8)
-        cfg = RenderConfig(tile_size, kmax, _round_up(total + 1, 1024), stats=True)
+        counts = np.asarray(bins.counts)
+        kmax = _round_up(int(counts.max()) + 1, B)
+        nc = int(np.sum(-(-counts // B)))
+        cfg = RenderConfig(tile_size, B, kmax, max(nc, 1), budget, stats=True)
         out = render(gaussians, cam, cfg)
-        assert int(out.pairs_overflow) == 0 and not bool(jnp.any(out.tile_truncated))
-        k = int(jnp.max(out.tile_counts if exact else out.tile_needed))
+        if int(out.pairs_overflow) or int(out.chunks_overflow) or bool(jnp.any(out.tile_truncated)):
+            raise RuntimeError("choose_config: sizing render was not exact (internal error)")
+        k = int(counts.max() if exact else jnp.max(out.tile_needed))
         need_k, need_m = max(need_k, k), max(need_m, total)
+        all_counts.append(counts)
+    K = _round_up(need_k * headroom, B)
+    nc = max(int(np.sum(-(-np.minimum(c, K) // B))) for c in all_counts)
     return RenderConfig(
         tile_size=tile_size,
-        capacity=_round_up(need_k * headroom, 16),
+        chunk_size=B,
+        capacity=K,
+        max_chunks=_round_up(nc * headroom, 8),
         max_pairs=_round_up(need_m * headroom, 1024),
     )
