@@ -2,6 +2,7 @@
 
 import itertools
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -14,7 +15,9 @@ from rsrd_jax.grasp import (
     PartMesh,
     build_part_mesh,
     sample_antipodal_grasps,
+    sample_part_grasps,
 )
+from rsrd_jax.grasp._antipodal import _traced
 from rsrd_jax.grasp._mesh import _decimate, _is_watertight
 
 BOX = (0.03, 0.02, 0.06)  # metres; 60 mm exceeds the 50 mm jaw
@@ -160,10 +163,13 @@ def test_scores_are_sorted_and_sampling_is_deterministic(box_grasps):
 
 
 def test_impossible_width_is_an_infeasible_result_not_an_error():
+    sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0))
+    traces = eqx.debug.get_num_traces(_traced)
     g = sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(max_width=0.015))
     assert g.result == GraspResult.width_out_of_range
     assert not np.asarray(g.valid).any() and np.all(np.isneginf(np.asarray(g.score)))
     assert int(g.num_hit) == GraspConfig().num_samples and int(g.num_width_ok) == 0
+    assert eqx.debug.get_num_traces(_traced) == traces  # float options are not static
     # A regular tetrahedron fits the jaw, but the face opposite any contact is 70.5° off the
     # axis (face normals meet at cos = -1/3): no pair inside the 45° cone.
     v = 0.015 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
@@ -235,3 +241,15 @@ def test_jitted_ray_cast_matches_a_float64_reference_under_jit():
     assert np.all(np.isfinite(t_ref))
     np.testing.assert_allclose(np.asarray(t), t_ref, atol=1e-5)
     assert np.mean(np.asarray(f) == f_ref) > 0.97  # ties on shared edges may pick either face
+
+
+def test_part_grasps_stack_per_part_results():
+    small = trimesh.creation.box((0.02, 0.02, 0.02))
+    pts_small, _ = trimesh.sample.sample_surface(small, 400, seed=5)
+    big = trimesh.creation.icosphere(subdivisions=3, radius=0.04)  # 80 mm across every way
+    pts_big, _ = trimesh.sample.sample_surface(big, 400, seed=6)
+    meshes, g = sample_part_grasps([pts_small, pts_big], jax.random.key(0))
+    assert len(meshes) == 2 and g.T_part_grasp.shape == (2, 480, 7)
+    part = lambda i: jax.tree.map(lambda x: x[i], g.result)
+    assert part(0) == GraspResult.success and part(1) == GraspResult.width_out_of_range
+    assert np.asarray(g.valid[0]).all() and not np.asarray(g.valid[1]).any()

@@ -10,6 +10,7 @@ from ._antipodal import GraspConfig as GraspConfig
 from ._antipodal import GraspResult as GraspResult
 from ._antipodal import PartGrasps as PartGrasps
 from ._antipodal import sample_antipodal_grasps as sample_antipodal_grasps
+from ._antipodal import sample_part_grasps as sample_part_grasps
 from ._mesh import MeshConfig as MeshConfig
 from ._mesh import PartMesh as PartMesh
 from ._mesh import build_part_mesh as build_part_mesh
@@ -22,4 +23,5 @@ __all__ = [
     "PartMesh",
     "build_part_mesh",
     "sample_antipodal_grasps",
+    "sample_part_grasps",
 ]

@@ -11,6 +11,7 @@ point along +z; YuMi's TCP frame has z out of the flange), y = z × x.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -19,7 +20,7 @@ import jaxlie
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ._mesh import PartMesh
+from ._mesh import MeshConfig, PartMesh, build_part_mesh
 
 
 class GraspConfig(eqx.Module):
@@ -301,7 +302,9 @@ def _sample_impl(
     )
 
 
-_sample = eqx.filter_jit(_sample_impl)
+# Counts traces (tests check that float options do not retrace).
+_traced = eqx.debug.assert_max_traces(_sample_impl, max_traces=None)
+_sample = eqx.filter_jit(_traced)
 
 
 def _bucket(n: int) -> int:
@@ -349,3 +352,29 @@ def sample_antipodal_grasps(
         jnp.asarray(tri), jnp.asarray(centroid, jnp.float32), jnp.asarray(radius, jnp.float32), key,
         _Params.of(config), config.num_samples, config.num_grasps, config.num_rolls, config.ray_batch,
     )
+
+
+def sample_part_grasps(
+    part_points: Sequence[Float[np.ndarray, "_n 3"]],
+    key: PRNGKeyArray,
+    mesh_config: MeshConfig = MeshConfig(),
+    grasp_config: GraspConfig = GraspConfig(),
+) -> tuple[list[PartMesh], PartGrasps]:
+    """Meshes and grasps of every part: `build_part_mesh` then `sample_antipodal_grasps` with
+    one key per part (split from `key`).
+
+    Args:
+        part_points: P point sets (part frames, metres), e.g. Gaussian centres per part.
+        key: PRNG key.
+        mesh_config: meshing options.
+        grasp_config: grasp options.
+
+    Returns:
+        (P meshes, PartGrasps with a leading part axis: T_part_grasp is P×n×7, result is P, ...).
+    """
+    if len(part_points) == 0:
+        raise ValueError("part_points: need at least one part")
+    meshes = [build_part_mesh(np.asarray(p), mesh_config) for p in part_points]
+    keys = jax.random.split(key, len(meshes))
+    grasps = [sample_antipodal_grasps(m, k, grasp_config) for m, k in zip(meshes, keys)]
+    return meshes, jax.tree.map(lambda *x: jnp.stack(x), *grasps)
