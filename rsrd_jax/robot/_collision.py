@@ -161,43 +161,56 @@ class CollisionResult(eqx.Module):
 
 
 def _distances_single(kin, geom, obj, q, T_world_part):
+    """All signed distances for one configuration: (self, table (caps,), object (caps, K+M)).
+
+    Every capsule-box pair (self vs body box, table, object boxes) goes through one batched
+    ``capsule_box`` call and every capsule-capsule pair (self, object capsules) through one
+    ``capsule_capsule`` call, over index lists fixed at trace time.
+    """
     R, p, _, _ = _fk_single(kin, q)
     Rc, pc = R[geom.cap_link], p[geom.cap_link]
     p0 = pc + jnp.einsum("nij,nj->ni", Rc, geom.cap_p0)
     p1 = pc + jnp.einsum("nij,nj->ni", Rc, geom.cap_p1)
     r = geom.cap_radius
-    i, j = geom.self_cc[:, 0], geom.self_cc[:, 1]
-    d_cc = jax.vmap(capsule_capsule)(p0[i], p1[i], r[i], p0[j], p1[j], r[j])
-    # Robot boxes (world) followed by the table: one capsule-box call for self and table pairs.
+    n, nb = p0.shape[0], geom.box_half.shape[0]
+    nob = 0 if obj is None else obj.box_part.shape[0]
+    noc = 0 if obj is None else obj.cap_part.shape[0]
+
+    # Boxes in the world: robot boxes, the table, object boxes.
     Tbl = jaxlie.SE3(geom.box_wxyz_xyz)
-    Rbl, pbl = Tbl.rotation().as_matrix(), Tbl.translation()
-    Rb = jnp.einsum("nij,njk->nik", R[geom.box_link], Rbl)
-    cb = p[geom.box_link] + jnp.einsum("nij,nj->ni", R[geom.box_link], pbl)
+    Rb = [jnp.einsum("nij,njk->nik", R[geom.box_link], Tbl.rotation().as_matrix())]
+    cb = [p[geom.box_link] + jnp.einsum("nij,nj->ni", R[geom.box_link], Tbl.translation())]
+    hb = [geom.box_half]
     Tt = jaxlie.SE3(geom.table_wxyz_xyz)
-    Rb = jnp.concatenate([Rb, Tt.rotation().as_matrix()[None]])
-    cb = jnp.concatenate([cb, Tt.translation()[None]])
-    hb = jnp.concatenate([geom.box_half, geom.table_half[None]])
-    n = p0.shape[0]
-    nb = geom.box_half.shape[0]
-    ci = jnp.concatenate([geom.self_cb[:, 0], jnp.arange(n)])
-    bi = jnp.concatenate([geom.self_cb[:, 1], jnp.full((n,), nb)])
-    d_b = jax.vmap(capsule_box)(p0[ci], p1[ci], r[ci], Rb[bi], cb[bi], hb[bi])
-    d_cb, d_table = d_b[: geom.self_cb.shape[0]], d_b[geom.self_cb.shape[0]:]
-    cols = []
-    if obj is not None and obj.box_part.shape[0] > 0:
+    Rb.append(Tt.rotation().as_matrix()[None]), cb.append(Tt.translation()[None])
+    hb.append(geom.table_half[None])
+    if nob:
         Tob = jaxlie.SE3(T_world_part[obj.box_part]) @ jaxlie.SE3(obj.box_wxyz_xyz)
-        Ro, co = Tob.rotation().as_matrix(), Tob.translation()
-        f = jax.vmap(jax.vmap(capsule_box, in_axes=(None, None, None, 0, 0, 0)),
-                     in_axes=(0, 0, 0, None, None, None))
-        cols.append(f(p0, p1, r, Ro, co, obj.box_half))
-    if obj is not None and obj.cap_part.shape[0] > 0:
+        Rb.append(Tob.rotation().as_matrix()), cb.append(Tob.translation()), hb.append(obj.box_half)
+    Rb, cb, hb = (jnp.concatenate(x) for x in (Rb, cb, hb))
+    ncb = geom.self_cb.shape[0]
+    cap_idx = jnp.concatenate([geom.self_cb[:, 0], jnp.asarray(np.repeat(np.arange(n), 1 + nob))])
+    box_idx = jnp.concatenate([geom.self_cb[:, 1],
+                               jnp.asarray(np.tile(np.arange(nb, nb + 1 + nob), n))])
+    d_b = capsule_box(p0[cap_idx], p1[cap_idx], r[cap_idx], Rb[box_idx], cb[box_idx], hb[box_idx])
+    d_cb = d_b[:ncb]
+    d_env = d_b[ncb:].reshape(n, 1 + nob)
+    d_table, d_obox = d_env[:, 0], d_env[:, 1:]
+
+    # Capsules: robot then object capsules.
+    if noc:
         Toc = jaxlie.SE3(T_world_part[obj.cap_part])
-        a, b = Toc @ obj.cap_p0, Toc @ obj.cap_p1
-        f = jax.vmap(jax.vmap(capsule_capsule, in_axes=(None, None, None, 0, 0, 0)),
-                     in_axes=(0, 0, 0, None, None, None))
-        cols.append(f(p0, p1, r, a, b, obj.cap_radius))
-    d_obj = jnp.concatenate(cols, axis=1) if cols else jnp.zeros((n, 0), p0.dtype)
-    return jnp.concatenate([d_cc, d_cb]), d_table, d_obj
+        P0 = jnp.concatenate([p0, Toc @ obj.cap_p0])
+        P1 = jnp.concatenate([p1, Toc @ obj.cap_p1])
+        RR = jnp.concatenate([r, obj.cap_radius])
+    else:
+        P0, P1, RR = p0, p1, r
+    i = jnp.concatenate([geom.self_cc[:, 0], jnp.asarray(np.repeat(np.arange(n), noc))])
+    j = jnp.concatenate([geom.self_cc[:, 1], jnp.asarray(np.tile(np.arange(n, n + noc), n))])
+    d_c = jax.vmap(capsule_capsule)(P0[i], P1[i], RR[i], P0[j], P1[j], RR[j])
+    ncc = geom.self_cc.shape[0]
+    d_cc, d_ocap = d_c[:ncc], d_c[ncc:].reshape(n, noc)
+    return jnp.concatenate([d_cc, d_cb]), d_table, jnp.concatenate([d_obox, d_ocap], axis=1)
 
 
 @eqx.filter_jit

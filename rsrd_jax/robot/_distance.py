@@ -4,7 +4,8 @@ Why not MJX for distances: MJX-JAX's convex (box) collision functions return a c
 separated pairs (mujoco#3131), so a smooth distance for an optimiser needs its own functions. These
 are exact for capsule-capsule (closest points of two segments, Ericson, *Real-Time Collision
 Detection* 5.1.9) and capsule-box (minimum of the box SDF along the capsule axis; the SDF of a
-convex set is convex, so a golden-section search on the segment parameter finds it). Closest-point
+convex set is convex and piecewise simple along a segment, so its minimiser is one of a few
+closed-form candidates, see ``_segment_box_param``). Closest-point
 parameters are held constant under differentiation (envelope theorem), so gradients are the
 gradients of the distance itself.
 """
@@ -16,8 +17,6 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 _EPS = 1e-9
-_GOLDEN_ITERS = 28
-_INV_PHI = 0.6180339887498949
 
 
 def _safe_norm(x: Array) -> Array:
@@ -58,7 +57,7 @@ def capsule_capsule(
     return _safe_norm(c1 - c2) - r1 - r2
 
 
-def box_sdf(x: Float[Array, "*n 3"], half: Float[Array, "3"]) -> Float[Array, "*n"]:
+def box_sdf(x: Float[Array, "*n 3"], half: Float[Array, "*#n 3"]) -> Float[Array, "*n"]:
     """Signed distance from points in the box frame to a centred box with half extents ``half``."""
     d = jnp.abs(x) - half
     outside = _safe_norm(jnp.maximum(d, 0.0))
@@ -67,29 +66,66 @@ def box_sdf(x: Float[Array, "*n 3"], half: Float[Array, "3"]) -> Float[Array, "*
     return outside + inside
 
 
+def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
+    """Parameter t in [0, 1] minimising the box SDF along x(t) = a + t d (box frame), exactly.
+
+    sdf(x(t)) is convex in t. Where it is >= 0 its square is piecewise quadratic,
+    sum_i max(|a_i + t d_i| - h_i, 0)^2, with pieces delimited by the kinks t = (+-h_i - a_i) / d_i;
+    where it is < 0 it equals max_j L_j(t) over the six linear functions L = +-(a_i + t d_i) - h_i.
+    So the minimiser is an end point, a kink, a crossing of two L's, or the stationary point of one
+    quadratic piece: all candidates are evaluated and the best is kept (no iterations, no sort).
+    Written per coordinate on (*b,) arrays so XLA gets long vectors, not trailing axes of 3.
+    """
+    A = [a[..., i] for i in range(3)]
+    D = [d[..., i] for i in range(3)]
+    H = [half[..., i] for i in range(3)]
+    small = [jnp.abs(x) < 1e-12 for x in D]
+    Ds = [jnp.where(s, 1.0, x) for s, x in zip(small, D)]
+    k_hi = [jnp.where(s, 0.0, (h - x) / dd) for s, h, x, dd in zip(small, H, A, Ds)]
+    k_lo = [jnp.where(s, 0.0, (-h - x) / dd) for s, h, x, dd in zip(small, H, A, Ds)]
+    k_0 = [jnp.where(s, 0.0, -x / dd) for s, x, dd in zip(small, A, Ds)]
+    c0 = [A[i] - H[i] for i in range(3)] + [-A[i] - H[i] for i in range(3)]
+    c1 = D + [-x for x in D]
+    cross = []
+    for j in range(6):
+        for k in range(j + 1, 6):
+            if k == j + 3:  # same axis, opposite signs: that is the kink -a/d already
+                continue
+            den = c1[j] - c1[k]
+            ok = jnp.abs(den) > 1e-12
+            cross.append(jnp.where(ok, (c0[k] - c0[j]) / jnp.where(ok, den, 1.0), 0.0))
+    zero, one = jnp.zeros_like(A[0]), jnp.ones_like(A[0])
+    bounds = [zero, one] + [jnp.clip(x, 0.0, 1.0) for x in k_hi + k_lo]
+    stat = []
+    for b in [zero] + bounds[2:]:  # each interval [b, next bound above b]
+        hi = one
+        for c in bounds:
+            hi = jnp.where((c > b) & (c < hi), c, hi)
+        mid = 0.5 * (b + hi)
+        num, den = zero, zero
+        for i in range(3):
+            x = A[i] + mid * D[i]
+            act = jnp.abs(x) > H[i]
+            num = num - jnp.where(act, D[i] * (A[i] - jnp.sign(x) * H[i]), 0.0)
+            den = den + jnp.where(act, D[i] * D[i], 0.0)
+        ok = den > 1e-12
+        stat.append(jnp.where(ok, jnp.clip(num / jnp.where(ok, den, 1.0), b, hi), mid))
+    cand = jnp.clip(jnp.stack([zero, one] + k_hi + k_lo + k_0 + cross + stat, axis=-1), 0.0, 1.0)
+    ex = [jnp.abs(A[i][..., None] + cand * D[i][..., None]) - H[i][..., None] for i in range(3)]
+    out = jnp.sqrt(sum(jnp.maximum(e, 0.0) ** 2 for e in ex))  # comparison only: no safe norm
+    out = out + jnp.minimum(jnp.maximum(jnp.maximum(ex[0], ex[1]), ex[2]), 0.0)
+    return jnp.take_along_axis(cand, jnp.argmin(out, axis=-1)[..., None], axis=-1)[..., 0]
+
+
 def capsule_box(
-    p: Float[Array, "3"], q: Float[Array, "3"], r: Float[Array, ""],
-    R_world_box: Float[Array, "3 3"], c_box: Float[Array, "3"], half: Float[Array, "3"],
-) -> Float[Array, ""]:
-    """Signed distance between a capsule (p, q, r) and an oriented box (rotation, centre, half
-    extents), all in the world frame: min over the axis of the box SDF minus r. Exact when
-    separated; when overlapping it is the depth of the deepest axis point plus r (a penetration
-    measure, not MuJoCo's contact depth)."""
-    a = (p - c_box) @ R_world_box
-    b = (q - c_box) @ R_world_box
-
-    def f(t):
-        return box_sdf(a + t * (b - a), half)
-
-    def body(_, lohi):
-        lo, hi = lohi
-        m1 = hi - _INV_PHI * (hi - lo)
-        m2 = lo + _INV_PHI * (hi - lo)
-        left = f(m1) <= f(m2)
-        return jnp.where(left, lo, m1), jnp.where(left, m2, hi)
-
-    lo, hi = jax.lax.fori_loop(0, _GOLDEN_ITERS, body, (jnp.zeros(()), jnp.ones(())))
-    t = jax.lax.stop_gradient(0.5 * (lo + hi))
-    # The ends are checked too: golden search on a flat (parallel) stretch can stop mid-way.
-    t = jax.lax.stop_gradient(jnp.where(f(0.0) < f(t), 0.0, jnp.where(f(1.0) < f(t), 1.0, t)))
-    return f(t) - r
+    p: Float[Array, "*b 3"], q: Float[Array, "*b 3"], r: Float[Array, "*b"],
+    R_world_box: Float[Array, "*b 3 3"], c_box: Float[Array, "*b 3"], half: Float[Array, "*b 3"],
+) -> Float[Array, "*b"]:
+    """Signed distance between capsules (p, q, r) and oriented boxes (rotation, centre, half
+    extents), all in the world frame, batched over leading axes: min over the capsule axis of the
+    box SDF minus r. Exact when separated; when overlapping it is the depth of the deepest axis
+    point plus r (a penetration measure, not MuJoCo's contact depth)."""
+    a = jnp.einsum("...j,...jk->...k", p - c_box, R_world_box)
+    b = jnp.einsum("...j,...jk->...k", q - c_box, R_world_box)
+    t = jax.lax.stop_gradient(_segment_box_param(a, b - a, half))
+    return box_sdf(a + t[..., None] * (b - a), half) - r
