@@ -50,6 +50,17 @@ def test_alpha_shape_of_box_surface_is_watertight_with_box_volume(n):
     assert len(mesh.faces) <= MeshConfig().target_faces
 
 
+def test_fixed_alpha_is_used_and_plain_alpha_rule_is_available():
+    pts = np.random.default_rng(8).uniform(-1, 1, (1500, 3)) * np.asarray(BOX) / 2  # volume samples
+    mesh = build_part_mesh(pts, MeshConfig(alpha=0.006))
+    assert mesh.method == "alpha_shape" and mesh.alpha == pytest.approx(0.006) and mesh.watertight
+    plain = build_part_mesh(pts, MeshConfig(alpha=0.006, fill_cavities=False))
+    assert plain.method == "alpha_shape" and plain.watertight
+    hull = trimesh.convex.convex_hull(pts).volume  # the sampled set's own extent (~0.87 of the box)
+    for m in (mesh, plain):
+        assert 0.75 * hull < m.volume < 1.02 * hull
+
+
 def test_alpha_shape_keeps_concavity_that_the_hull_fills():
     # L-shaped plate, 40×40×10 mm minus a 30×30 mm corner, sampled within 0.5 mm of its surface
     # (as 3DGS centres are): union of boxes A = [0,40]×[0,10] and B = [0,10]×[0,40] (mm).

@@ -262,7 +262,7 @@ def rank_parts(
         part_points: P point sets (part frame, metres), e.g. Gaussian centres per part.
         T_obj_part: T×P×7 part poses in the object frame (wxyz_xyz).
         hands: HandKeypointSource, or its T×H×2×3 array (object frame, NaN = not visible; H = 1
-            or 2, hand 0 left, 1 right), or None.
+            or 2, hand 0 left, 1 right; a single hand counts as the left one for pairs), or None.
         frame_weights: T non-negative frame weights (default all 1).
         config: options.
 
