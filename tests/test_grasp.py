@@ -50,6 +50,19 @@ def test_alpha_shape_of_box_surface_is_watertight_with_box_volume(n):
     assert len(mesh.faces) <= MeshConfig().target_faces
 
 
+def test_alpha_shape_ignores_floaters_and_interior_points():
+    # 3DGS-like: noisy surface centres, some interior ones and 40 floaters 2–3.5 cm outside.
+    rng = np.random.default_rng(0)
+    surface = _box_surface_points(1500, 5e-4, seed=1)
+    inner = rng.uniform(-0.4, 0.4, (300, 3)) * np.asarray(BOX)
+    out = rng.normal(size=(40, 3))
+    out *= rng.uniform(0.035, 0.05, (40, 1)) / np.linalg.norm(out, axis=1, keepdims=True)
+    mesh = build_part_mesh(np.concatenate([surface, inner, out]))
+    assert mesh.method == "alpha_shape" and mesh.watertight
+    assert mesh.volume == pytest.approx(np.prod(BOX), rel=0.12)
+    np.testing.assert_allclose(mesh.to_trimesh().extents, BOX, atol=3e-3)
+
+
 def test_fixed_alpha_is_used_and_plain_alpha_rule_is_available():
     pts = np.random.default_rng(8).uniform(-1, 1, (1500, 3)) * np.asarray(BOX) / 2  # volume samples
     mesh = build_part_mesh(pts, MeshConfig(alpha=0.006))
