@@ -4,6 +4,7 @@ numpy SVD."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import struct
@@ -105,8 +106,11 @@ def _np_conv(x, w, s, depthwise):
     return out
 
 
-def _np_forward(sd, img01: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """Logits and the stride-8/16 stage outputs of one H×W×3 image in [0, 1]."""
+def _np_forward(
+    sd, img01: np.ndarray, last_block: int = 15
+) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
+    """Logits and the stride-4/8/16 stage outputs of one H×W×3 image in [0, 1]; stops early
+    (logits None) after ``last_block`` < 15."""
     relu6 = lambda a: np.clip(a, 0.0, 6.0)  # noqa: E731
     x = (img01.astype(np.float64) * 255.0 - 127.0) / 128.0
     x = relu6(_np_bn(sd, _np_conv(x, sd["_conv_stem.weight"], 2, False), "_bn0"))
@@ -120,10 +124,14 @@ def _np_forward(sd, img01: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray
         x = _np_bn(sd, x @ sd[p + "_project_conv.weight"][:, :, 0, 0].T, p + "_bn2")
         if s == 1 and x.shape == inp.shape:
             x = x + inp
+        if b == 2:
+            stages[4] = x
         if b == 4:
             stages[8] = x
         if b == 10:
             stages[16] = x
+        if b == last_block and b < 15:
+            return None, stages
     x = relu6(_np_bn(sd, x @ sd["_conv_head.weight"][:, :, 0, 0].T, "_bn1"))
     return x.mean(axis=(0, 1)) @ sd["_fc.weight"].T + sd["_fc.bias"], stages
 
@@ -277,36 +285,36 @@ def test_loader_rejects_wrong_architecture(tmp_path):
 # ----------------------------------------------------------------------------------------------
 
 
-# All full-network checks share one batch (two compilations: logits, default features). 223 rows
-# give the symmetric TF-SAME stem pad (1, 1), 224 columns the asymmetric (0, 1).
-SIZE = (223, 224)
+# Full-network checks share two compilations: logits and default features of one 3×224×224
+# batch (the extractor's network sizes are multiples of 32). Odd sizes are checked on the
+# stride-4 stage alone (cheap to compile and to run in numpy).
 
 
 @pytest.fixture(scope="module")
-def hopper_batch(hopper) -> np.ndarray:
-    """The portrait, a noisy copy (σ = 2/255) and a copy shifted by one pixel: 3×223×224×3."""
-    img = _resize(hopper, *SIZE)
+def feature_batch(hopper) -> np.ndarray:
+    """The portrait, a noisy copy (σ = 2/255) and a copy shifted by one pixel: 3×224×224×3."""
+    img = _resize(hopper, 224, 224)
     rng = np.random.default_rng(1)
     noisy = np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
     return np.stack([img, noisy, np.roll(img, 1, axis=(0, 1))])
 
 
 @pytest.fixture(scope="module")
-def batch_logits(extractor, hopper_batch) -> np.ndarray:
-    return np.asarray(extractor.logits(hopper_batch))
+def batch_logits(extractor, feature_batch) -> np.ndarray:
+    return np.asarray(extractor.logits(feature_batch))
 
 
 @pytest.fixture(scope="module")
-def batch_features(extractor, hopper_batch) -> FeatureMap:
-    return extractor(hopper_batch)
+def batch_features(extractor, feature_batch) -> FeatureMap:
+    return extractor(feature_batch)
 
 
 def _unit(a: np.ndarray) -> np.ndarray:
     return a / np.linalg.norm(a, axis=-1, keepdims=True)
 
 
-def test_jax_matches_numpy_forward(state_dict, hopper_batch, batch_logits, batch_features):
-    ref_logits, ref_stages = _np_forward(state_dict, hopper_batch[0] / 255.0)
+def test_jax_matches_numpy_forward(state_dict, batch_logits, feature_batch, batch_features):
+    ref_logits, ref_stages = _np_forward(state_dict, feature_batch[0] / 255.0)
     scale = np.abs(ref_logits).max()
     np.testing.assert_allclose(batch_logits[0], ref_logits, atol=2e-5 * scale, rtol=0)
     assert np.argmax(batch_logits[0]) == np.argmax(ref_logits)
@@ -317,6 +325,17 @@ def test_jax_matches_numpy_forward(state_dict, hopper_batch, batch_logits, batch
     feats = np.asarray(batch_features.features[0])
     np.testing.assert_allclose(feats[..., :40], _unit(s8), atol=2e-4)
     np.testing.assert_allclose(feats[..., 40:], _unit(up16), atol=2e-4)
+
+
+@pytest.mark.parametrize("size", [(45, 51), (46, 52)])
+def test_odd_and_even_sizes_match_numpy(state_dict, extractor, hopper, size):
+    """TF-SAME padding: symmetric for odd sizes, the extra pixel after for even ones."""
+    img = _resize(hopper, *size)
+    cfg = EfficientNetConfig(strides=(4,), size_multiple=1, normalize_levels=False)
+    got = EfficientNetExtractor(net=extractor.net, config=cfg)(img).features
+    _, ref = _np_forward(state_dict, img / 255.0, last_block=2)
+    assert got.shape == ref[4].shape == (-(-size[0] // 4), -(-size[1] // 4), 24)
+    np.testing.assert_allclose(got, ref[4], atol=2e-5 * np.abs(ref[4]).max())
 
 
 def test_imagenet_class_and_stable_ranking(batch_logits):
@@ -336,14 +355,14 @@ def test_imagenet_class_and_stable_ranking(batch_logits):
 # ----------------------------------------------------------------------------------------------
 
 
-def test_extractor_shapes_batching_and_levels(extractor, hopper_batch, batch_features):
+def test_extractor_shapes_batching_and_levels(extractor, feature_batch, batch_features):
     fmap = batch_features
     assert isinstance(fmap, FeatureMap)
-    assert fmap.features.shape == (3, 28, 28, 152) == (3, *extractor.output_shape(*SIZE), 152)
+    assert fmap.features.shape == (3, 28, 28, 152) == (3, *extractor.output_shape(224, 224), 152)
     assert extractor.feature_dim == 152
-    assert fmap.stride == (223 / 28, 224 / 28)
+    assert fmap.stride == (8.0, 8.0)
     # Float input in [0, 1] = uint8; an image's features do not depend on its batch position.
-    imgs = hopper_batch
+    imgs = feature_batch
     np.testing.assert_allclose(extractor(imgs / 255.0).features, fmap.features, atol=1e-5)
     np.testing.assert_allclose(extractor(imgs[::-1]).features[2], fmap.features[0], atol=1e-5)
     # Nested batch shape.
@@ -352,12 +371,18 @@ def test_extractor_shapes_batching_and_levels(extractor, hopper_batch, batch_fea
     np.testing.assert_allclose(jnp.linalg.norm(fmap.features, axis=-1), np.sqrt(2), rtol=1e-4)
 
 
-def test_extractor_config_stride_and_scale(extractor, hopper):
+def test_extractor_config_stride_scale_and_size_multiple(extractor, hopper):
+    img = _resize(hopper, 32, 40)
     cfg = EfficientNetConfig(strides=(8,), input_scale=2.0, normalize_levels=False)
     ext = EfficientNetExtractor(net=extractor.net, config=cfg)
-    fmap = ext(_resize(hopper, 32, 40))
-    assert fmap.features.shape == (8, 10, 40) == (*ext.output_shape(32, 40), 40)
-    assert fmap.stride == (4.0, 4.0)
+    # 64×80 after scaling, rounded to multiples of 32: 64×96 → 8×12 cells.
+    fmap = ext(img)
+    assert fmap.features.shape == (8, 12, 40) == (*ext.output_shape(32, 40), 40)
+    assert fmap.stride == (4.0, 40 / 12)
+    exact = EfficientNetExtractor(
+        net=extractor.net, config=dataclasses.replace(cfg, size_multiple=1)
+    )
+    assert exact.output_shape(32, 40) == (8, 10)
     with pytest.raises(ValueError, match="strides"):
         EfficientNetConfig(strides=(8, 12))
 
