@@ -29,7 +29,7 @@ class FrozenDict(dict):
 class FeatureDecoder(eqx.Module):
     """Bias-free ReLU MLP applied per pixel (DiG): F → width → … → D, `len(weights)` layers."""
 
-    weights: tuple[Float[Array, "i o"], ...]
+    weights: tuple[Array, ...]
     """Layer matrices (in × out), applied as x @ W with ReLU between layers (not after the last)."""
 
     @staticmethod

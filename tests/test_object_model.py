@@ -1,0 +1,264 @@
+"""ObjectModel build pieces: 3DGS fit on a known scene, mask voting on a studio object, save/load,
+bad captures, ARAP pairs and automatic grouping."""
+
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+
+from rsrd_jax.features import fit_pca
+from rsrd_jax.geometry import Camera, Intrinsics, look_at
+from rsrd_jax.io import ArtefactError, read_capture, write_label_png
+from rsrd_jax.parts import (
+    BuildConfig,
+    FeatureDecoder,
+    FrozenDict,
+    ObjectModel,
+    arap_pairs,
+    auto_group,
+    build_object_model,
+    decode_rendered,
+    gt_part_accuracy,
+    knn_cleanup,
+    load_object_model,
+    save_object_model,
+    vote_part_labels,
+)
+from rsrd_jax.splat import Gaussians
+from rsrd_jax.splat._fit import FitConfig, fit_gaussians
+from rsrd_jax.splat._reference import render_reference
+
+
+# --------------------------------------------------------------------------------------------
+# 3DGS fit recovers a tiny known scene rendered by the dense reference renderer
+# --------------------------------------------------------------------------------------------
+
+
+def _tiny_scene():
+    means = np.array([[0.0, 0.0, 0.0], [0.12, 0.05, 0.0], [-0.08, 0.1, 0.06], [0.02, -0.1, -0.05]])
+    n = len(means)
+    g = Gaussians.create(
+        means,
+        np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+        np.full((n, 3), np.log(0.03)),
+        np.full(n, 2.0),
+        np.array([[0.9, 0.1, 0.1], [0.1, 0.8, 0.2], [0.2, 0.2, 0.9], [0.8, 0.8, 0.1]]),
+    )
+    intr = Intrinsics.create(40.0, 40.0, 16.0, 16.0, 32, 32)
+    Ts = []
+    for i in range(8):
+        a = 2 * np.pi * i / 8
+        eye = 0.6 * np.array([np.cos(a), np.sin(a), 0.5 * np.sin(2 * a) + 0.3])
+        Ts.append(np.asarray(look_at(eye, np.zeros(3)).as_matrix(), np.float64))
+    return g, intr, np.stack(Ts)
+
+
+def test_fit_recovers_tiny_scene():
+    g, intr, T = _tiny_scene()
+    imgs = []
+    for Tv in T:
+        cam = Camera(intr, jaxlie.SE3.from_matrix(jnp.asarray(Tv, jnp.float32)))
+        rgb = np.asarray(render_reference(g, cam, jnp.zeros(3))["rgb"])
+        imgs.append(np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+    imgs = np.stack(imgs)
+    rng = np.random.default_rng(0)
+    init = Gaussians.create(
+        np.asarray(g.means) + rng.normal(0, 0.015, (4, 3)),
+        np.tile([1.0, 0.0, 0.0, 0.0], (4, 1)),
+        np.full((4, 3), np.log(0.04)),
+        np.full(4, 2.0),  # opacity fixed at the truth: colour × opacity is otherwise ambiguous
+        np.full((4, 3), 0.5),
+    )
+    cfg = FitConfig(iterations=300, block=100, max_gaussians=8, densify_from=10**9, prune_opacity=0.0,
+                    lr_means=2e-3, lr_means_final=2e-4, lr_colours=2e-2, lr_opacity=0.0)  # fmt: skip
+    res = fit_gaussians(init, imgs, intr, T, None, cfg)
+    assert res.gaussians.num_gaussians == 4
+    err_mu = np.linalg.norm(np.asarray(res.gaussians.means) - np.asarray(g.means), axis=1)
+    assert err_mu.max() < 0.006, err_mu  # 6 mm on 3 cm Gaussians, initial error ~25 mm
+    assert np.abs(np.asarray(res.gaussians.colours) - np.asarray(g.colours)).max() < 0.08
+    s_fit = np.exp(np.asarray(res.gaussians.log_scales)).mean(1)
+    assert np.all(np.abs(s_fit / 0.03 - 1) < 0.25), s_fit
+    assert res.history["blocks"][-1]["loss"] < 0.25 * res.history["blocks"][0]["loss"]
+
+
+# --------------------------------------------------------------------------------------------
+# Mask voting on a small studio object
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def studio_scan(tmp_path_factory):
+    from rsrd_jax.studio import StudioConfig, make_object
+
+    out = tmp_path_factory.mktemp("studio") / "red_box"
+    make_object("red_box", out, StudioConfig(parts=("scan",), scan_views=10, scan_size=(128, 96)))
+    return out / "scan"
+
+
+def _gt_world(scan):
+    z = np.load(scan / "gt" / "scan_gt.npz")
+    T = jaxlie.SE3(jnp.asarray(z["T_world_part"], jnp.float32)[z["part_point_ids"]])
+    return np.asarray(T @ jnp.asarray(z["part_points"], jnp.float32), np.float64), z["part_point_ids"]
+
+
+def test_mask_voting_recovers_studio_labels(studio_scan):
+    cap = read_capture(studio_scan)
+    world, ids = _gt_world(studio_scan)
+    pm = np.stack([cap.part_mask(i) for i in range(len(cap))])
+    dep = np.stack([cap.depth(i) for i in range(len(cap))])
+    votes = vote_part_labels(world, cap.intrinsics, cap.T_cam_world(), pm, dep, 2, tolerance=0.004)
+    known = votes.sum(1) > 0
+    assert known.mean() > 0.6  # many surface points are seen in front in some view
+    raw = np.argmax(votes, 1)
+    assert np.mean(raw[known] == ids[known]) > 0.97
+    labels = knn_cleanup(world, raw, known, k=10)
+    acc = gt_part_accuracy(world, labels, world, ids)
+    assert acc >= 0.98, acc
+    # an occluder 3 cm in front of every surface hides the points: only the few surface points
+    # that happen to lie 3 cm in front of another surface still vote
+    occluded = np.where(dep > 0, dep - 0.03, 0.0)
+    none = vote_part_labels(world, cap.intrinsics, cap.T_cam_world(), pm, occluded, 2, tolerance=0.004)
+    assert none.sum() < 0.03 * votes.sum()
+
+
+# --------------------------------------------------------------------------------------------
+# Save / load
+# --------------------------------------------------------------------------------------------
+
+
+def _random_model(seed=0, n=50, f=8, d=6, p=3):
+    rng = np.random.default_rng(seed)
+    g = Gaussians.create(
+        rng.normal(size=(n, 3)), rng.normal(size=(n, 4)), rng.normal(size=(n, 3)), rng.normal(size=n),
+        rng.uniform(size=(n, 3)), rng.normal(size=(n, f)), rng.integers(0, p, n),
+    )  # fmt: skip
+    pca = fit_pca(rng.normal(size=(200, 10)).astype(np.float32), dim=d)
+    dec = FeatureDecoder.create(f, d, 16, 3, jax.random.key(seed))
+    return ObjectModel(
+        gaussians=g, decoder=dec, pca=pca,
+        part_centroids=jnp.asarray(rng.normal(size=(p, 3)), jnp.float32),
+        arap_pairs=jnp.asarray([[0, 1], [2, 5], [7, 49]], jnp.int32),
+        feature_backend=FrozenDict(name="efficientnet_lite0", config={"strides": [8, 16]}, stride=[8.0, 8.0]),
+        part_names=("a", "b", "c"), meta=FrozenDict(scale_m=0.05, metrics={"x": 1.5}),
+    )  # fmt: skip
+
+
+def test_save_load_roundtrip_exact(tmp_path):
+    m = _random_model()
+    save_object_model(m, tmp_path / "model")
+    m2 = load_object_model(tmp_path / "model")
+    la, ta = jax.tree_util.tree_flatten(m)
+    lb, tb = jax.tree_util.tree_flatten(m2)
+    assert ta == tb
+    for a, b in zip(la, lb):
+        assert a.dtype == b.dtype and np.array_equal(np.asarray(a), np.asarray(b))
+    assert m2.part_names == ("a", "b", "c") and m2.meta["metrics"]["x"] == 1.5
+    assert m2.num_parts == 3
+    ids = np.asarray(m.gaussians.part_ids)
+    assert np.array_equal(m2.part_points(1), np.asarray(m.gaussians.means)[ids == 1])
+    # static dicts are hashable, so the model can pass through jit
+    out = jax.jit(lambda mm: decode_rendered(mm.decoder, mm.gaussians.features, jnp.ones(50)))(m2)
+    assert out.shape == (50, 6)
+
+
+def test_load_errors_name_file_and_field(tmp_path):
+    d = tmp_path / "model"
+    save_object_model(_random_model(), d)
+    meta = json.loads((d / "model.json").read_text())
+    bad = dict(meta, format="other/9")
+    (d / "model.json").write_text(json.dumps(bad))
+    with pytest.raises(ArtefactError, match=r"model\.json: format"):
+        load_object_model(d)
+    (d / "model.json").write_text(json.dumps(dict(meta, num_parts=2, part_names=["a", "b"])))
+    with pytest.raises(ArtefactError, match=r"part_centroids|part_ids"):
+        load_object_model(d)
+    (d / "model.safetensors").unlink()
+    with pytest.raises(ArtefactError, match=r"model\.safetensors: not found"):
+        load_object_model(d)
+
+
+# --------------------------------------------------------------------------------------------
+# Bad captures
+# --------------------------------------------------------------------------------------------
+
+
+def _copy(scan, tmp_path):
+    dst = tmp_path / "scan"
+    shutil.copytree(scan, dst)
+    return dst
+
+
+def test_bad_capture_missing_image(studio_scan, tmp_path):
+    d = _copy(studio_scan, tmp_path)
+    (d / "images" / "00003.png").unlink()
+    with pytest.raises(ArtefactError, match=r"frames\[3\]\.file_path: file not found"):
+        build_object_model(d, progress=False)
+
+
+def test_bad_capture_mismatched_size(studio_scan, tmp_path):
+    import cv2
+
+    d = _copy(studio_scan, tmp_path)
+    cv2.imwrite(str(d / "images" / "00002.png"), np.zeros((50, 60, 3), np.uint8))
+    with pytest.raises(ArtefactError, match=r"00002\.png: image is 60×50"):
+        build_object_model(d, progress=False)
+
+
+def test_bad_capture_nonfinite_pose(studio_scan, tmp_path):
+    d = _copy(studio_scan, tmp_path)
+    meta = json.loads((d / "transforms.json").read_text())
+    meta["frames"][1]["transform_matrix"][0][3] = float("nan")
+    (d / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ArtefactError, match=r"frames\[1\]\.transform_matrix"):
+        build_object_model(d, progress=False)
+
+
+def test_bad_capture_unknown_part_label(studio_scan, tmp_path):
+    d = _copy(studio_scan, tmp_path)
+    pm = read_capture(d).part_mask(4).copy()
+    pm[:5, :5] = 7
+    write_label_png(d / "part_masks" / "00004.png", pm)
+    with pytest.raises(ArtefactError, match=r"00004\.png: part label 7 but the model has 2 parts"):
+        build_object_model(d, BuildConfig(num_parts=2), progress=False)
+    with pytest.raises(ArtefactError, match=r"labels \[3, 4, 5, 6\] never appear"):
+        build_object_model(d, progress=False)
+
+
+# --------------------------------------------------------------------------------------------
+# Part-level helpers
+# --------------------------------------------------------------------------------------------
+
+
+def test_arap_pairs_match_brute_force(rng):
+    pts = rng.uniform(0, 0.05, (300, 3))
+    lab = (pts[:, 0] > 0.025).astype(int)
+    r = 0.006
+    got = {tuple(p) for p in arap_pairs(pts, lab, r).tolist()}
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    want = {(i, j) for i in range(300) for j in range(i + 1, 300) if d[i, j] < r and lab[i] != lab[j]}
+    assert got == want and len(want) > 10
+
+
+def test_auto_group_separates_blobs_by_size(rng):
+    a = rng.normal([0, 0, 0], 0.01, (600, 3))
+    b = rng.normal([0.1, 0, 0], 0.01, (300, 3))
+    pts = np.concatenate([a, b])
+    feats = np.concatenate([np.tile([1.0, 0.0], (600, 1)), np.tile([0.0, 1.0], (300, 1))])
+    lab = auto_group(pts, feats + rng.normal(0, 0.05, feats.shape))
+    assert np.mean(lab[:600] == 0) > 0.99 and np.mean(lab[600:] == 1) > 0.99
+
+
+@pytest.mark.slow
+def test_build_small_studio_object(studio_scan, tmp_path):
+    from rsrd_jax.parts import FieldConfig
+
+    cfg = BuildConfig(fit=FitConfig(iterations=200), field=FieldConfig(iterations=200), holdout_every=0)
+    m = build_object_model(studio_scan, cfg, progress=False, rrd_path=tmp_path / "b.rrd")
+    assert m.num_parts == 2 and (tmp_path / "b.rrd").is_file()
+    assert m.meta["metrics"]["part_label_accuracy"] >= 0.97
+    save_object_model(m, tmp_path / "m")
+    assert load_object_model(tmp_path / "m").gaussians.num_gaussians == m.gaussians.num_gaussians
