@@ -277,3 +277,20 @@ def test_part_grasps_stack_per_part_results():
     part = lambda i: jax.tree.map(lambda x: x[i], g.result)
     assert part(0) == GraspResult.success and part(1) == GraspResult.width_out_of_range
     assert np.asarray(g.valid[0]).all() and not np.asarray(g.valid[1]).any()
+
+
+def test_dexnet_axis_jitter_keeps_contacts_on_the_box_inside_the_cone():
+    cfg = GraspConfig(axis_jitter=0.5, friction_angle_deg=30.0)
+    g = sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(2), cfg)
+    assert g.result == GraspResult.success
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)]
+    q = np.abs(c) - np.asarray(BOX) / 2
+    sd = np.linalg.norm(np.maximum(q, 0), axis=-1) + np.minimum(q.max(-1), 0)
+    assert np.abs(sd).max() < 1e-5  # both contacts on the box surface
+    axis = c[:, 1] - c[:, 0]
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    cos = np.abs(axis).max(-1)  # angle to the nearest face normal (= both contact normals)
+    assert np.all(cos >= np.cos(np.radians(30.0)) - 1e-5)
+    assert np.any(cos < 0.999)  # the axes really are tilted
+    widths = np.asarray(g.width)[np.asarray(g.valid)]
+    assert np.all((widths >= 0.02 - 1e-5) & (widths <= 0.05))

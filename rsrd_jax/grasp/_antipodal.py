@@ -38,6 +38,9 @@ class GraspConfig(eqx.Module):
     friction_angle_deg: float = 45.0
     """Both contact normals must lie within this angle of the grasp axis (RSRD 45°, i.e.
     friction coefficient 1; Dex-Net atan(0.5) = 26.6°)."""
+    axis_jitter: float = 0.0
+    """Dex-Net samples the grasp axis inside a cone around the inward normal: deviation
+    tan ≤ this value (Dex-Net 0.5). 0 = exactly along the normal, as RSRD."""
     min_separation: float = 0.003
     """Non-maximum suppression: a grasp is dropped when both of its contacts lie within this
     distance (metres) of the contacts of a better kept grasp."""
@@ -74,7 +77,8 @@ class PartGrasps(eqx.Module):
     """
 
     T_part_grasp: Float[Array, "n 7"]
-    """Grasp (TCP target) poses in the part frame, wxyz_xyz."""
+    """Grasp (TCP target) poses in the part frame, wxyz_xyz: x = finger travel (grasp) axis,
+    z = approach direction (fingertips point along +z), origin at the (shifted) grasp centre."""
     width: Float[Array, " n"]
     """Contact separation, metres."""
     score: Float[Array, " n"]
@@ -187,6 +191,7 @@ class _Params(eqx.Module):
     min_width: Float[Array, ""]
     cos_cone: Float[Array, ""]
     min_separation: Float[Array, ""]
+    axis_jitter: Float[Array, ""]
     antipodal_weight: Float[Array, ""]
     centre_weight: Float[Array, ""]
     shifts: Float[Array, " s"]
@@ -197,7 +202,7 @@ class _Params(eqx.Module):
         f = lambda x: jnp.asarray(x, jnp.float32)
         return _Params(
             f(cfg.max_width), f(cfg.min_width), f(math.cos(math.radians(cfg.friction_angle_deg))),
-            f(cfg.min_separation), f(cfg.antipodal_weight), f(cfg.centre_weight), f(cfg.shifts),
+            f(cfg.min_separation), f(cfg.axis_jitter), f(cfg.antipodal_weight), f(cfg.centre_weight), f(cfg.shifts),
             f(cfg.approach_reference),
         )
 
@@ -218,14 +223,24 @@ def _sample_impl(
     area = 0.5 * jnp.linalg.norm(cross, axis=-1)
     normal = cross / jnp.maximum(2.0 * area, 1e-30)[:, None]
 
-    k_face, k_bary = jax.random.split(key)
+    k_face, k_bary, k_cone = jax.random.split(key, 3)
     face = jax.random.choice(k_face, tri.shape[0], (num_samples,), p=area / jnp.sum(area))
     r = jax.random.uniform(k_bary, (num_samples, 2))
     s = jnp.sqrt(r[:, 0])
     w = jnp.stack([1.0 - s, s * (1.0 - r[:, 1]), s * r[:, 1]], axis=-1)
     p1 = jnp.einsum("sk,skd->sd", w, tri[face])
     n1 = normal[face]
-    d = -n1  # ray along the inward normal
+    # Ray along the inward normal, tilted inside the sampling cone (Dex-Net: -normalize(n +
+    # r (cos θ t1 + sin θ t2)), r ~ U(0, jitter), θ ~ U(0, 2π)).
+    helper = jnp.where(jnp.abs(n1[:, :1]) < 0.9, jnp.array([1.0, 0.0, 0.0]), jnp.array([0.0, 1.0, 0.0]))
+    t1 = jnp.cross(n1, helper)
+    t1 = t1 / jnp.maximum(jnp.linalg.norm(t1, axis=-1, keepdims=True), 1e-12)
+    t2 = jnp.cross(n1, t1)
+    rc = jax.random.uniform(k_cone, (num_samples, 2))
+    tilt = prm.axis_jitter * rc[:, :1]
+    ang = 2.0 * jnp.pi * rc[:, 1:]
+    d = -(n1 + tilt * (jnp.cos(ang) * t1 + jnp.sin(ang) * t2))
+    d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
 
     def cast(args):
         o, dd, ex = args
