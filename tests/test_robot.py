@@ -416,3 +416,60 @@ def test_scene_with_object_and_servo_tracking(yumi):
     assert np.all(d.qpos[list(yo.qpos_adr[14:])] < 0.006)
     # The cube rests on the table.
     assert abs(d.body("obj/cube").xpos[2] - 0.02) < 2e-3
+
+
+def _ik_right(m: mujoco.MjModel, d: mujoco.MjData, adr: list[int], target: np.ndarray, q0: np.ndarray) -> np.ndarray:
+    """Damped least squares IK of the right TCP to (target, pointing down) with MuJoCo C jacobians."""
+    R_target = np.diag([1.0, -1.0, -1.0])
+    sid = m.site("tcp_r").id
+    dof = [m.jnt_dofadr[m.joint(n).id] for n in robot.RIGHT_ARM_JOINTS]
+    q = q0.copy()
+    for _ in range(200):
+        d.qpos[adr] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        R = d.site_xmat[sid].reshape(3, 3)
+        E = R_target @ R.T
+        err = np.concatenate([target - d.site_xpos[sid], 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])])
+        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        mujoco.mj_jacSite(m, d, jp, jr, sid)
+        J = np.vstack([jp, jr])[:, dof]
+        q[:7] = np.clip(q[:7] + J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(6), err), robot.JOINT_LOWER[:7], robot.JOINT_UPPER[:7])
+    assert np.linalg.norm(err) < 1e-4
+    return q
+
+
+def test_grasp_and_lift_cube():
+    """Pads with friction hold a 4 cm cube: IK down, close the gripper, lift 12 cm."""
+    spec = robot.build_scene_spec('<body name="cube"><freejoint/><geom type="box" size="0.02 0.02 0.02" '
+                                  'rgba="0.8 0.2 0.2 1"/></body>', pos=(0.5, -0.2, 0.0201))
+    yo = robot.load_yumi(spec)
+    m = yo.mj_model
+    d = mujoco.MjData(m)
+    adr = list(yo.qpos_adr)
+    q_above = _ik_right(m, d, adr, np.array([0.5, -0.2, 0.12]), robot.HOME_Q.copy())
+    q_grasp = _ik_right(m, d, adr, np.array([0.5, -0.2, 0.025]), q_above)
+    q_lift = _ik_right(m, d, adr, np.array([0.5, -0.2, 0.145]), q_grasp)
+    q_closed = q_grasp.copy()
+    q_closed[14] = 0.0
+    q_lift[14] = 0.0
+    mujoco.mj_resetData(m, d)
+    d.qpos[:] = yo.qpos(q_above)
+    mujoco.mj_forward(m, d)
+    segments = [(q_above, q_above, 0.2), (q_above, q_grasp, 1.0), (q_grasp, q_closed, 0.6), (q_closed, q_lift, 1.0),
+                (q_lift, q_lift, 0.4)]
+    dt = m.opt.timestep
+    for qa, qb, dur in segments:
+        steps = int(dur / dt)
+        for k in range(steps):
+            s = (k + 1) / steps
+            w = 3 * s**2 - 2 * s**3  # smooth step
+            qdot = (qb - qa) * 6 * s * (1 - s) / dur
+            d.ctrl[:] = robot.servo_ctrl(yo, qa + w * (qb - qa), qdot)
+            mujoco.mj_step(m, d)
+    cube = d.body("obj/cube").xpos
+    tcp = d.site("tcp_r").xpos
+    assert cube[2] > 0.10, cube  # lifted with the hand
+    assert np.linalg.norm(cube - tcp) < 0.02, (cube, tcp)
+    # Fingers stopped on the cube faces: jaw = 2 q ~ 4 cm.
+    assert abs(2 * d.qpos[adr[14]] - 0.04) < 0.004, d.qpos[adr[14]]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 _EPS = 1e-9
@@ -66,6 +67,10 @@ def box_sdf(x: Float[Array, "*n 3"], half: Float[Array, "*#n 3"]) -> Float[Array
     return outside + inside
 
 
+_PAIR_J = np.array([j for j in range(6) for k in range(j + 1, 6) if k != j + 3])
+_PAIR_K = np.array([k for j in range(6) for k in range(j + 1, 6) if k != j + 3])
+
+
 def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
     """Parameter t in [0, 1] minimising the box SDF along x(t) = a + t d (box frame), exactly.
 
@@ -73,45 +78,41 @@ def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
     sum_i max(|a_i + t d_i| - h_i, 0)^2, with pieces delimited by the kinks t = (+-h_i - a_i) / d_i;
     where it is < 0 it equals max_j L_j(t) over the six linear functions L = +-(a_i + t d_i) - h_i.
     So the minimiser is an end point, a kink, a crossing of two L's, or the stationary point of one
-    quadratic piece: all candidates are evaluated and the best is kept (no iterations, no sort).
-    Written per coordinate on (*b,) arrays so XLA gets long vectors, not trailing axes of 3.
+    quadratic piece: all 2 + 9 + 12 + 7 candidates are evaluated and the best is kept (no
+    iterations, no sort). Coordinates are kept as separate (*b,) arrays with candidates on a
+    trailing axis, so XLA sees long vectors and few ops.
     """
-    A = [a[..., i] for i in range(3)]
-    D = [d[..., i] for i in range(3)]
-    H = [half[..., i] for i in range(3)]
-    small = [jnp.abs(x) < 1e-12 for x in D]
-    Ds = [jnp.where(s, 1.0, x) for s, x in zip(small, D)]
-    k_hi = [jnp.where(s, 0.0, (h - x) / dd) for s, h, x, dd in zip(small, H, A, Ds)]
-    k_lo = [jnp.where(s, 0.0, (-h - x) / dd) for s, h, x, dd in zip(small, H, A, Ds)]
-    k_0 = [jnp.where(s, 0.0, -x / dd) for s, x, dd in zip(small, A, Ds)]
-    c0 = [A[i] - H[i] for i in range(3)] + [-A[i] - H[i] for i in range(3)]
-    c1 = D + [-x for x in D]
-    cross = []
-    for j in range(6):
-        for k in range(j + 1, 6):
-            if k == j + 3:  # same axis, opposite signs: that is the kink -a/d already
-                continue
-            den = c1[j] - c1[k]
-            ok = jnp.abs(den) > 1e-12
-            cross.append(jnp.where(ok, (c0[k] - c0[j]) / jnp.where(ok, den, 1.0), 0.0))
-    zero, one = jnp.zeros_like(A[0]), jnp.ones_like(A[0])
-    bounds = [zero, one] + [jnp.clip(x, 0.0, 1.0) for x in k_hi + k_lo]
-    stat = []
-    for b in [zero] + bounds[2:]:  # each interval [b, next bound above b]
-        hi = one
-        for c in bounds:
-            hi = jnp.where((c > b) & (c < hi), c, hi)
-        mid = 0.5 * (b + hi)
-        num, den = zero, zero
-        for i in range(3):
-            x = A[i] + mid * D[i]
-            act = jnp.abs(x) > H[i]
-            num = num - jnp.where(act, D[i] * (A[i] - jnp.sign(x) * H[i]), 0.0)
-            den = den + jnp.where(act, D[i] * D[i], 0.0)
-        ok = den > 1e-12
-        stat.append(jnp.where(ok, jnp.clip(num / jnp.where(ok, den, 1.0), b, hi), mid))
-    cand = jnp.clip(jnp.stack([zero, one] + k_hi + k_lo + k_0 + cross + stat, axis=-1), 0.0, 1.0)
-    ex = [jnp.abs(A[i][..., None] + cand * D[i][..., None]) - H[i][..., None] for i in range(3)]
+    A = [a[..., i, None] for i in range(3)]
+    D = [d[..., i, None] for i in range(3)]
+    H = [half[..., i, None] for i in range(3)]
+    Ac, Dc, Hc = (jnp.concatenate(x, axis=-1) for x in (A, D, H))  # (*b, 3)
+    ok = jnp.abs(Dc) > 1e-12
+    Ds = jnp.where(ok, Dc, 1.0)
+    kinks = jnp.concatenate([(Hc - Ac) / Ds, (-Hc - Ac) / Ds, -Ac / Ds], axis=-1)
+    kinks = jnp.where(jnp.concatenate([ok, ok, ok], axis=-1), kinks, 0.0)  # (*b, 9)
+    # Linear pieces L_j(t) = c0_j + c1_j t; crossings of pairs on different axes.
+    c0 = jnp.concatenate([Ac - Hc, -Ac - Hc], axis=-1)
+    c1 = jnp.concatenate([Dc, -Dc], axis=-1)
+    den = c1[..., _PAIR_J] - c1[..., _PAIR_K]
+    okd = jnp.abs(den) > 1e-12
+    cross = jnp.where(okd, (c0[..., _PAIR_K] - c0[..., _PAIR_J]) / jnp.where(okd, den, 1.0), 0.0)
+    # Quadratic pieces: intervals [b, next bound above b] between 0, 1 and the six kinks.
+    zero = jnp.zeros_like(A[0])
+    lo = jnp.concatenate([zero, jnp.clip(kinks[..., :6], 0.0, 1.0)], axis=-1)  # (*b, 7)
+    bounds = jnp.concatenate([lo, zero + 1.0], axis=-1)  # (*b, 8)
+    above = bounds[..., None, :] > lo[..., :, None]
+    hi = jnp.min(jnp.where(above, bounds[..., None, :], 1.0), axis=-1)
+    mid = 0.5 * (lo + hi)
+    num, dsq = zero, zero
+    for i in range(3):
+        x = A[i] + mid * D[i]
+        act = jnp.abs(x) > H[i]
+        num = num - jnp.where(act, D[i] * (A[i] - jnp.sign(x) * H[i]), 0.0)
+        dsq = dsq + jnp.where(act, D[i] * D[i], 0.0)
+    okq = dsq > 1e-12
+    stat = jnp.where(okq, jnp.clip(num / jnp.where(okq, dsq, 1.0), lo, hi), mid)
+    cand = jnp.clip(jnp.concatenate([zero, zero + 1.0, kinks, cross, stat], axis=-1), 0.0, 1.0)
+    ex = [jnp.abs(A[i] + cand * D[i]) - H[i] for i in range(3)]
     out = jnp.sqrt(sum(jnp.maximum(e, 0.0) ** 2 for e in ex))  # comparison only: no safe norm
     out = out + jnp.minimum(jnp.maximum(jnp.maximum(ex[0], ex[1]), ex[2]), 0.0)
     return jnp.take_along_axis(cand, jnp.argmin(out, axis=-1)[..., None], axis=-1)[..., 0]
