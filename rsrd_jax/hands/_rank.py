@@ -65,7 +65,11 @@ class RankConfig(eqx.Module):
     adjacency_points: int = 512
     """Points per part (deterministic subsample) used to find adjacent parts."""
     base_part: int | None = None
-    """Index of the base part (root of the motion tree); None = the part with most points."""
+    """Index of the base part (root of the motion tree); None = the part that moves least in the
+    object frame (ties within `base_motion_tol`: the largest by convex-hull volume)."""
+    base_motion_tol: float = 0.002
+    """Metres of time-averaged RMS motion within which parts count as equally still when the
+    base is chosen."""
 
 
 class PartRanking(eqx.Module):
@@ -96,10 +100,11 @@ class PartRanking(eqx.Module):
 def pad_part_points(
     part_points: Sequence[Float[np.ndarray, "_n 3"]],
 ) -> tuple[Float[np.ndarray, "p n 3"], Bool[np.ndarray, "p n"]]:
-    """Stack per-part point sets of different sizes into a padded array and a validity mask."""
+    """Stack per-part point sets of different sizes into a padded array and a validity mask
+    (padded to a power of two ≥ 64 points, so that similar objects share compilations)."""
     if len(part_points) == 0:
         raise ValueError("part_points: need at least one part")
-    n = max(len(p) for p in part_points)
+    n = max(64, 1 << (max(len(p) for p in part_points) - 1).bit_length())
     pts = np.zeros((len(part_points), n, 3), np.float32)
     mask = np.zeros((len(part_points), n), bool)
     for i, p in enumerate(part_points):
@@ -196,6 +201,19 @@ def _relative_motion(
     return jax.vmap(rel)(jnp.arange(points.shape[0]))
 
 
+def _largest_part(points: np.ndarray, mask: np.ndarray, candidates: np.ndarray) -> int:
+    """Index of the candidate part with the largest convex-hull volume (point counts depend on
+    how the points were sampled; size does not)."""
+    vols = np.full(len(points), -1.0)
+    for p in np.nonzero(candidates)[0]:
+        x = points[p][mask[p]].astype(np.float64)
+        try:
+            vols[p] = scipy.spatial.ConvexHull(x).volume
+        except (scipy.spatial.QhullError, ValueError):  # flat or too few points
+            vols[p] = 0.0
+    return int(np.argmax(vols))
+
+
 def _adjacency_tree(
     points: np.ndarray, mask: np.ndarray, T0: np.ndarray, base: int, max_points: int
 ) -> np.ndarray:
@@ -253,9 +271,12 @@ def rank_parts(
 
     Without hands (None, or fewer than `min_visible_frames` frames with a visible fingertip):
     rank by motion relative to the parent part. Parents come from an adjacency tree rooted at
-    the base part (most points): a part attached to a moving part moves with it, so measuring
+    the base part: a part attached to a moving part moves with it, so measuring
     each part relative to the adjacent part it hangs from credits the part that really moved
-    relative to its neighbour, not everything downstream of it. Pairs score the sum of both
+    relative to its neighbour, not everything downstream of it. The base part is the one that
+    moves least in the object frame (the largest among near-ties) unless `config.base_part`
+    says otherwise; relative motion between two parts is symmetric, so this is what decides
+    which of two jointed parts "moved". Pairs score the sum of both
     parts' motion, in both orders (left/right is unknown without hands).
 
     Args:
@@ -278,12 +299,24 @@ def rank_parts(
     w = np.ones(nT, np.float32) if frame_weights is None else np.asarray(frame_weights, np.float32)
     if w.shape != (nT,) or np.any(w < 0) or not np.any(w > 0):
         raise ValueError(f"frame_weights: expected {nT} non-negative weights, not all zero")
-    base = int(np.argmax(mask.sum(1))) if config.base_part is None else config.base_part
+    # Pad frames to a multiple of frame_chunk (repeated last pose, weight 0, no hands) so that
+    # demos of similar length share compilations.
+    nT_pad = -(-nT // config.frame_chunk) * config.frame_chunk
+    T_np = np.concatenate([T_np, np.repeat(T_np[-1:], nT_pad - nT, axis=0)])
+    w = np.concatenate([w, np.zeros(nT_pad - nT, np.float32)])
+    args = (jnp.asarray(pts), jnp.asarray(mask), jnp.asarray(T_np))
+    if config.base_part is None:
+        # The base: the part that moves least in the object frame; among near-ties, the largest.
+        absolute = np.asarray(_relative_motion(*args, jnp.full((P,), -1, jnp.int32), jnp.asarray(w)))
+        still = absolute <= absolute.min() + config.base_motion_tol
+        base = _largest_part(pts, mask, still)
+    else:
+        base = config.base_part
     if not 0 <= base < P:
         raise ValueError(f"config.base_part: {base} not in [0, {P})")
 
     parent = _adjacency_tree(pts, mask, T_np[0], base, config.adjacency_points)
-    motion = _relative_motion(jnp.asarray(pts), jnp.asarray(mask), jnp.asarray(T_np), jnp.asarray(parent), jnp.asarray(w))
+    motion = _relative_motion(*args, jnp.asarray(parent, jnp.int32), jnp.asarray(w))
     motion_np = np.asarray(motion)
 
     tips = None
@@ -291,6 +324,7 @@ def rank_parts(
         tips = np.asarray(hands.fingertips_obj() if isinstance(hands, HandKeypointSource) else hands, np.float32)
         if tips.ndim != 4 or tips.shape[0] != nT or tips.shape[2:] != (2, 3) or tips.shape[1] not in (1, 2):
             raise ValueError(f"hands: expected shape ({nT}, 1|2, 2, 3), got {tips.shape}")
+        tips = np.concatenate([tips, np.full((nT_pad - nT,) + tips.shape[1:], np.nan, np.float32)])
         visible = np.isfinite(tips).all(-1).any(-1).any(-1) & (w > 0)
         if visible.sum() < config.min_visible_frames:
             tips = None
