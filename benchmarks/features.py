@@ -6,6 +6,10 @@ by known random similarity transforms (±20°, scale 0.85–1.15, ±15 px); ever
 source is matched to its cosine nearest neighbour in the warped image (after PCA to 64 dims, as
 the pipeline uses them) and the error of the matched cell centre against the true warp is
 measured in input pixels. Metrics: median error and the fraction within 4 / 8 / 16 px.
+
+Receptive-field centres (full run only): the centroid of |∂(Σ_c feature)/∂image| of central
+cells (the effective receptive field, Luo et al. 2016) minus the ``FeatureMap`` cell centre, for
+network input sizes that are multiples of 32, ≡ 4 mod 8, and odd.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import cv2
+import jax
 import jax.numpy as jnp
 import matplotlib
 import numpy as np
@@ -72,6 +77,34 @@ def _matching_errors(ext: EfficientNetExtractor, pairs, pca_dim: int = 64) -> np
         nn = np.argmax(a @ b.T, axis=1)
         errs.append(np.linalg.norm(src[nn] - gt, axis=1)[inside])
     return np.concatenate(errs)
+
+
+def _rf_offsets(net, img: np.ndarray, size: int, stride: int) -> np.ndarray:
+    """Effective-receptive-field centroid minus FeatureMap cell centre (y, x) of central cells."""
+    x = cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)[None] / 255.0
+    x = (jnp.asarray(x, jnp.float32) - 127 / 255) / (128 / 255)
+    grid = -(-size // stride)
+    pitch = size / grid
+
+    @jax.jit
+    def grad_of_cell(x, i, j):
+        def cell(x):
+            (m,) = net.features(x, (stride,))
+            return jax.lax.dynamic_slice(m, (0, i, j, 0), (1, 1, 1, m.shape[-1])).sum()
+
+        return jnp.abs(jax.grad(cell)(x))[0].sum(-1)
+
+    centres = (np.arange(size) + 0.5)[:, None]
+    out = []
+    mid = grid // 2
+    for i in (mid - 1, mid):
+        for j in (mid - 1, mid):
+            g = np.asarray(grad_of_cell(x, i, j))
+            g = g / g.sum()
+            cy = float((g.sum(1)[:, None] * centres).sum())
+            cx = float((g.sum(0)[:, None] * centres).sum())
+            out.append((cy - (i + 0.5) * pitch, cx - (j + 0.5) * pitch))
+    return np.asarray(out)
 
 
 def run(quick: bool) -> list[dict]:
@@ -147,6 +180,26 @@ def run(quick: bool) -> list[dict]:
                 },
             )
         )
+
+    if not quick:
+        for stride in (8, 16):
+            for size in (128, 100, 97):
+                offs = np.concatenate(
+                    [_rf_offsets(base.net, im, size, stride) for im in _natural_images()]
+                )
+                records.append(
+                    record(
+                        NAME,
+                        {"op": "rf_centre", "stride": stride, "size": size},
+                        0.0,
+                        0.0,
+                        {
+                            "offset_y_px": float(offs[:, 0].mean()),
+                            "offset_x_px": float(offs[:, 1].mean()),
+                            "offset_std_px": float(offs.std()),
+                        },
+                    )
+                )
 
     # PCA over "all scan views": 40 maps of 24×32×152 → 64 dims.
     rng = np.random.default_rng(0)

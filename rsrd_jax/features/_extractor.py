@@ -118,11 +118,11 @@ class EfficientNetConfig(eqx.Module):
     """Resize factor applied to the image before the network (2.0 halves the effective stride)."""
     size_multiple: int = eqx.field(static=True, default=32)
     """The network input (after ``input_scale``) is resized so both sides are multiples of this.
-    With multiples of 32 every stride-2 layer sees an even size, as in ImageNet training (224),
-    and the measured effective receptive-field centres (gradient centroids) of the stride-8
-    stage lie within 0.6 px of the ``FeatureMap`` cell centres; at sizes ≡ 4 mod 8 they are
-    ~2 px off, at odd sizes ~4 px. (The stride-16 stage sits 2–5 px down-right of its nominal
-    centres even then.) 1 disables the rounding."""
+    With multiples of 32 every stride-2 layer sees an even size, as in ImageNet training (224).
+    Measured (``benchmarks/features.py``, gradient centroids of central cells, 3 images): the
+    stride-8 stage's effective receptive-field centres are offset from the ``FeatureMap`` cell
+    centres by (−0.3, +1.8) px (y, x) at 128 px, (−2.5, −1.1) at 100 px (≡ 4 mod 8) and
+    (−4.2, −2.6) at 97 px (odd), spread ±1.8 px. 1 disables the rounding."""
     normalize_levels: bool = eqx.field(static=True, default=True)
     """L2-normalise each stage's per-cell vector (after upsampling) before concatenation, so
     that stages of very different magnitude contribute equally (norm sqrt(len(strides)))."""
