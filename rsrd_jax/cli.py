@@ -109,6 +109,81 @@ def cmd_demo(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_track(a: argparse.Namespace) -> int:
+    """Tracks a demo video with an ObjectModel; writes the PartTrajectory, overlay video, rerun."""
+    from .io import read_demo, save_trajectory
+    from .parts import load_object_model
+    from .track import (
+        InitConfig, LossWeights, NoMonoDepth, NoOccluder, OnnxDepthAnything, StudioDepthOracle,
+        StudioHandMasks, TrackConfig, track_video,
+    )  # fmt: skip
+    from .viz import log_tracking, overlay_frames
+    from .io import write_video
+
+    out = Path(a.out)
+    if (out / "trajectory.npz").exists() and not a.overwrite:
+        print(f"error: {out / 'trajectory.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    model = load_object_model(a.model)
+    demo = read_demo(a.video, a.camera)
+    demo_dir = Path(a.video).parent if Path(a.video).is_file() else Path(a.video)
+    occluder = StudioHandMasks(demo_dir) if a.occluder == "studio" else NoOccluder()
+    if a.mono_depth == "studio-oracle":
+        mono = StudioDepthOracle(demo_dir, seed=a.seed)
+    elif a.mono_depth == "none":
+        mono = NoMonoDepth()
+    else:
+        mono = OnnxDepthAnything(a.mono_depth)
+    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, rgb=a.w_rgb)
+    cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
+                      max_gaussians=a.max_gaussians, seed=a.seed)  # fmt: skip
+    init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
+    traj = track_video(model, demo, cfg, init, occluder, mono)
+    save_trajectory(traj, out)
+    t = traj.meta["timings_s"]
+    print(f"tracked {traj.num_frames} frames × {traj.num_parts} parts -> {out / 'trajectory.npz'}")
+    print("  timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + f"; {traj.meta['frames_per_second']:.2f} frames/s")
+    if not a.no_video:
+        ov = overlay_frames(model, traj, demo)
+        write_video(out / "overlay.mp4", ov, demo.fps)
+        print(f"  overlay video: {out / 'overlay.mp4'}")
+        if a.rerun:
+            print(f"  rerun recording: {log_tracking(model, traj, demo, out / 'track.rrd', ov)}")
+    return 0
+
+
+def cmd_build(a: argparse.Namespace) -> int:
+    """Builds an ObjectModel (3DGS fit, feature field, parts) from a scan capture."""
+    from .parts import BuildConfig, FieldConfig, FitConfig, build_object_model, save_object_model
+
+    out = Path(a.out)
+    if (out / "model.json").exists() and not a.overwrite:
+        print(f"error: {out} already holds a model; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    box = None if a.crop_box is None else (tuple(a.crop_box[:3]), tuple(a.crop_box[3:]))
+    fd, dd = FitConfig(), FieldConfig()
+    cfg = BuildConfig(
+        fit=FitConfig(iterations=a.iterations or fd.iterations, max_gaussians=a.max_gaussians or fd.max_gaussians,
+                      refine_poses=a.refine_poses, seed=a.seed),
+        field=FieldConfig(iterations=a.field_iterations or dd.iterations, seed=a.seed),
+        onnx_path=a.onnx, pca_dim=a.pca_dim, holdout_every=a.holdout_every, num_parts=a.num_parts,
+        group_scale=a.scale, crop_box=box, use_masks=not a.no_masks,
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    model = build_object_model(a.capture, cfg, progress=True, rrd_path=None if a.no_rerun else out / "build.rrd")
+    save_object_model(model, out)
+    m = model.meta["metrics"]
+    print(f"ObjectModel -> {out}: {model.gaussians.num_gaussians} Gaussians, {model.num_parts} parts "
+          f"({model.meta['grouping']}), {len(model.arap_pairs)} ARAP pairs")  # fmt: skip
+    for k, v in m.items():
+        print(f"  {k}: {v:.4g}" if isinstance(v, float) else f"  {k}: {v}")
+    print("  stage times: " + ", ".join(f"{k} {v:.1f}" for k, v in model.meta["stage_times_s"].items()))
+    if not a.no_rerun:
+        print(f"  rerun recording: {out / 'build.rrd'}")
+    print(f"build finished in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def cmd_bench(a: argparse.Namespace) -> int:
     root = Path(__file__).resolve().parent.parent
     if not (root / "benchmarks" / "run.py").is_file():
@@ -141,6 +216,52 @@ def build_parser() -> argparse.ArgumentParser:
     dm.add_argument("--out", default="demo_out", help="output directory")
     dm.add_argument("--seed", type=int, default=0)
     dm.set_defaults(func=cmd_demo)
+
+    tr = sub.add_parser("track", help="track every part of an ObjectModel through a demo video (4D-DPM)")
+    tr.add_argument("model", help="ObjectModel directory (from `rsrd-jax build`)")
+    tr.add_argument("video", help="demo video (mp4) or its directory")
+    tr.add_argument("--out", required=True, help="output directory (trajectory.npz/json, overlay.mp4, track.rrd)")
+    tr.add_argument("--camera", default=None, help="camera.json (default: next to the video)")
+    tr.add_argument("--occluder", choices=("studio", "none"), default="none",
+                    help="hand masks: the studio's ground truth (oracle) or none")  # fmt: skip
+    tr.add_argument("--mono-depth", default="none",
+                    help="'studio-oracle' (labelled oracle), 'none', or a Depth-Anything ONNX file")  # fmt: skip
+    tr.add_argument("--roi-size", type=int, default=224, help="ROI crop side in pixels")
+    tr.add_argument("--steps", type=int, default=50, help="Adam steps per frame")
+    tr.add_argument("--smooth-iters", type=int, default=30, help="joint smoothing iterations (0: off)")
+    tr.add_argument("--max-gaussians", type=int, default=12000, help="Gaussians used for tracking")
+    tr.add_argument("--yaw-seeds", type=int, default=8, help="initialisation yaw seeds")
+    tr.add_argument("--init-iters", type=int, default=80, help="initialisation iterations per seed")
+    tr.add_argument("--distance", type=float, default=None, help="camera-object distance prior (m)")
+    tr.add_argument("--w-feature", type=float, default=1.0, help="feature loss weight")
+    tr.add_argument("--w-depth", type=float, default=0.2, help="depth ranking loss weight (0: no depth)")
+    tr.add_argument("--w-arap", type=float, default=0.2, help="ARAP loss weight (0: no ARAP)")
+    tr.add_argument("--w-rgb", type=float, default=0.05, help="photometric L1 weight")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--no-video", action="store_true", help="skip the overlay video")
+    tr.add_argument("--rerun", action="store_true", help="also write track.rrd")
+    tr.add_argument("--overwrite", action="store_true", help="replace an existing trajectory")
+    tr.set_defaults(func=cmd_track)
+
+    bd = sub.add_parser("build", help="build an ObjectModel (3DGS + feature field + parts) from a scan capture")
+    bd.add_argument("capture", help="capture directory (nerfstudio transforms.json)")
+    bd.add_argument("--out", required=True, help="model directory (model.safetensors + model.json)")
+    bd.add_argument("--overwrite", action="store_true", help="replace an existing model")
+    bd.add_argument("--iterations", type=int, default=None, help="3DGS iterations (default 1500)")
+    bd.add_argument("--field-iterations", type=int, default=None, help="feature-field iterations (default 600)")
+    bd.add_argument("--max-gaussians", type=int, default=None, help="Gaussian capacity (default 16384)")
+    bd.add_argument("--refine-poses", action="store_true", help="optimise per-view camera pose corrections")
+    bd.add_argument("--onnx", default=None, help="ViT/DINOv2 ONNX file instead of the embedded EfficientNet")
+    bd.add_argument("--pca-dim", type=int, default=64, help="PCA dimension of the features")
+    bd.add_argument("--holdout-every", type=int, default=8, help="hold out every k-th view for metrics (0: none)")
+    bd.add_argument("--num-parts", type=int, default=None, help="known part count (mask labels above it are errors)")
+    bd.add_argument("--scale", type=float, default=1.0, help="automatic grouping scale without part masks")
+    bd.add_argument("--crop-box", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                    help="world box isolating the object when there are no masks (m)")  # fmt: skip
+    bd.add_argument("--no-masks", action="store_true", help="ignore the capture's object masks")
+    bd.add_argument("--no-rerun", action="store_true", help="do not write build.rrd")
+    bd.add_argument("--seed", type=int, default=0)
+    bd.set_defaults(func=cmd_build)
 
     bn = sub.add_parser("bench", help="run the benchmark suite (source checkout): args go to benchmarks.run")
     bn.add_argument("args", nargs=argparse.REMAINDER)

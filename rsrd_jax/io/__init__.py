@@ -39,3 +39,9 @@ from ._images import (
     write_label_png as write_label_png,
     write_video as write_video,
 )
+from ._trajectory import (
+    TRAJECTORY_FORMAT as TRAJECTORY_FORMAT,
+    PartTrajectory as PartTrajectory,
+    load_trajectory as load_trajectory,
+    save_trajectory as save_trajectory,
+)

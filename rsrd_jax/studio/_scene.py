@@ -34,18 +34,19 @@ class SceneOptions:
 
 
 def _hand_xml(i: int, width: float) -> str:
-    """A proxy hand in its own frame: x = thumb→index pinch axis, z = approach direction; the
-    fingertip capsules touch the part surfaces `width` apart."""
+    """A proxy hand in its own frame (x = thumb→index pinch axis, z = approach direction), with
+    fingertip capsules touching the part surfaces `width` apart, and a forearm as a second mocap
+    body that `StudioScene` points up and away from the object."""
     s = " ".join(f"{c:.3f}" for c in SKIN)
     t = width / 2 + FINGER_RADIUS
     geoms = [
         # fingers: capsules ending at the fingertips (±x), running back against the approach
-        f'<geom name="hand{i}_thumb" type="capsule" size="{FINGER_RADIUS}" fromto="{-t:.4f} 0 0 {-t - 0.02:.4f} -0.01 -0.05" rgba="{s} 1"/>',
-        f'<geom name="hand{i}_index" type="capsule" size="{FINGER_RADIUS}" fromto="{t:.4f} 0 0 {t + 0.02:.4f} 0.0 -0.055" rgba="{s} 1"/>',
-        f'<geom name="hand{i}_palm" type="box" size="0.04 0.014 0.03" pos="0 -0.005 -0.085" rgba="{s} 1"/>',
-        f'<geom name="hand{i}_arm" type="capsule" size="0.026" fromto="0 -0.01 -0.11 0 -0.03 -0.4" rgba="{s} 1"/>',
+        f'<geom name="hand{i}_thumb" type="capsule" size="{FINGER_RADIUS}" fromto="{-t:.4f} 0 0 {-t - 0.015:.4f} -0.008 -0.04" rgba="{s} 1"/>',
+        f'<geom name="hand{i}_index" type="capsule" size="{FINGER_RADIUS}" fromto="{t:.4f} 0 0 {t + 0.015:.4f} 0.0 -0.045" rgba="{s} 1"/>',
+        f'<geom name="hand{i}_palm" type="box" size="{max(0.03, t + 0.012):.4f} 0.012 0.022" pos="0 -0.004 -0.065" rgba="{s} 1"/>',
     ]
-    return f'<body name="hand{i}" mocap="true">{"".join(geoms)}</body>'
+    arm = f'<geom name="hand{i}_arm" type="capsule" size="0.022" fromto="0 0 0 0 0 0.25" rgba="{s} 1"/>'
+    return f'<body name="hand{i}" mocap="true">{"".join(geoms)}</body><body name="arm{i}" mocap="true">{arm}</body>'
 
 
 def ground_texture(seed: int, size: int = 256) -> np.ndarray:
@@ -130,13 +131,12 @@ class StudioScene:
             b = int(m.geom_bodyid[g])
             if b in self.body_ids:
                 self.geom_label[g] = self.body_ids.index(b) + 1
-            elif mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b).startswith("hand"):
+            elif mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b).startswith(("hand", "arm")):
                 self.geom_label[g] = HAND_LABEL
         self.cam_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "studio_cam")
-        self.hand_mocap = [
-            int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"hand{i}")])
-            for i in range(len(obj.contacts))
-        ] if opts.hands else []  # fmt: skip
+        mocap = lambda name: int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)])  # noqa: E731
+        self.hand_mocap = [mocap(f"hand{i}") for i in range(len(obj.contacts))] if opts.hands else []
+        self.arm_mocap = [mocap(f"arm{i}") for i in range(len(obj.contacts))] if opts.hands else []
         # rest poses of free parts (for their offsets)
         mujoco.mj_kinematics(m, self.data)
         self.T_world_part_rest = self.part_poses()
@@ -164,6 +164,17 @@ class StudioScene:
             q = np.zeros(4)
             mujoco.mju_mat2Quat(q, T[:3, :3].reshape(9))
             d.mocap_quat[mid] = q
+            # forearm: from the palm, up and away from the object (less occlusion from above)
+            palm = T[:3, :3] @ np.array([0.0, -0.004, -0.075]) + T[:3, 3]
+            away = -T[:3, 2] * np.array([1.0, 1.0, 0.0])
+            direction = away / max(np.linalg.norm(away), 1e-6) * 0.6 + np.array([0.0, 0.0, 1.0])
+            z = direction / np.linalg.norm(direction)
+            x = np.cross([0.0, 1.0, 0.0], z)
+            x = x / max(np.linalg.norm(x), 1e-6) if np.linalg.norm(x) > 1e-6 else np.array([1.0, 0.0, 0.0])
+            R = np.stack([x, np.cross(z, x), z], axis=1)
+            d.mocap_pos[self.arm_mocap[i]] = palm
+            mujoco.mju_mat2Quat(q, R.reshape(9))
+            d.mocap_quat[self.arm_mocap[i]] = q
         if self.hand_mocap:
             mujoco.mj_kinematics(self.model, d)
 

@@ -1,1 +1,40 @@
-"""Tracking: 4D-DPM losses, per-frame optimiser, temporal smoothing, multi-seed init, ADD evaluation (issue 5)."""
+"""Tracking (4D-DPM): recover every part's 3D motion from a monocular demo video.
+
+Owns frame observations (ROI crops, features, occluder masks, mono-depth sources), the loss terms
+(features, depth ranking, ARAP with Barron's loss, smoothness), the per-frame Adam solve, joint
+temporal smoothing, the multi-seed pose initialisation (also used for registration) and ADD
+evaluation. Does not own the object model (`parts/`) or rendering (`splat/`).
+"""
+
+from ._config import InitConfig as InitConfig, LossWeights as LossWeights, TrackConfig as TrackConfig
+from ._dpm import (
+    FrameObs as FrameObs,
+    TrackModel as TrackModel,
+    Weights as Weights,
+    frame_objective as frame_objective,
+    render_posed as render_posed,
+    solve_frame as solve_frame,
+)
+from ._eval import add_metrics as add_metrics, kabsch as kabsch
+from ._init import initialize_pose as initialize_pose, seed_rotations as seed_rotations
+from ._losses import (
+    arap_loss as arap_loss,
+    barron_loss as barron_loss,
+    depth_ranking_loss as depth_ranking_loss,
+    feature_loss as feature_loss,
+    pose_smoothness as pose_smoothness,
+)
+from ._observe import (
+    MonoDepthSource as MonoDepthSource,
+    NoMonoDepth as NoMonoDepth,
+    NoOccluder as NoOccluder,
+    Observer as Observer,
+    OccluderSource as OccluderSource,
+    OnnxDepthAnything as OnnxDepthAnything,
+    StudioDepthOracle as StudioDepthOracle,
+    StudioHandMasks as StudioHandMasks,
+    box_intrinsics as box_intrinsics,
+    crop as crop,
+    roi_box as roi_box,
+)
+from ._track import track_video as track_video

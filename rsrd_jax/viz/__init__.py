@@ -10,3 +10,4 @@ from ._sheet import (
     save_contact_sheet as save_contact_sheet,
 )
 from ._studio import log_studio as log_studio, studio_contact_sheet as studio_contact_sheet
+from ._track import log_tracking as log_tracking, overlay_frames as overlay_frames, write_overlay_video as write_overlay_video

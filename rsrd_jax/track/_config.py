@@ -1,0 +1,86 @@
+"""Tracking configuration. Defaults follow the RSRD paper/code (`shared/notes/reference_rsrd.md`)."""
+
+from __future__ import annotations
+
+import equinox as eqx
+
+
+class LossWeights(eqx.Module):
+    """Weights of the per-frame loss terms (array-like leaves: changing them does not recompile)."""
+
+    feature: float = 1.0
+    """Feature (decoded PCA feature) term, RSRD's DINO loss."""
+    depth_rank: float = 0.2
+    """Mono-depth ranking term on random pixel pairs inside the eroded rendered mask."""
+    arap: float = 0.2
+    """As-rigid-as-possible term on cross-part boundary pairs (Barron robust loss)."""
+    rgb: float = 0.05
+    """Photometric L1 term (RSRD's release uses 0.05; 0 disables it)."""
+
+
+class TrackConfig(eqx.Module):
+    """Options of `track_video` (4D-DPM). Every field is documented; the CLI exposes them."""
+
+    weights: LossWeights = LossWeights()
+    """Loss weights."""
+    roi_size: int = 224
+    """Side (pixels) of the square ROI crop the frame is resampled to before feature extraction."""
+    roi_margin: float = 0.25
+    """ROI = bounding box of the object's projection at the predicted pose, grown by this
+    fraction of its extent on each side."""
+    steps_per_frame: int = 50
+    """Adam steps per frame."""
+    lr_start: float = 5e-3
+    """Initial learning rate (tangent units: metres and radians)."""
+    lr_end: float = 1e-3
+    """Final learning rate of the exponential decay (RSRD release: 1e-3; paper: 5e-4)."""
+    translation_scale: float | None = None
+    """Metres per unit of translation step (learning rates are in radians for rotations); None:
+    the object's radius, so steps are relative to the object's size whatever its scale."""
+    velocity_factor: float = 0.2
+    """Initial guess of a frame: previous pose composed with this fraction of the last motion."""
+    rank_pairs: int = 4096
+    """Random pixel pairs of the depth ranking loss per step."""
+    alpha_mask: float = 0.8
+    """Rendered alpha above which a pixel counts as object (ranking mask, per-part residuals)."""
+    arap_alpha: float | None = None
+    """Barron α of the ARAP loss; None: 1.0 for attached parts, 0.1 for separable objects."""
+    arap_scale: float = 0.001
+    """Barron scale c of the ARAP loss, metres."""
+    smooth_iters: int = 30
+    """Joint temporal smoothing iterations after the per-frame pass (0 disables smoothing)."""
+    smooth_batch: int = 8
+    """Frames rendered per smoothing iteration (a random minibatch; smoothness uses all frames)."""
+    smooth_weight: float = 0.2
+    """Weight of the first-difference pose smoothness term (RSRD: 0.2)."""
+    smooth_lr: float = 2e-3
+    """Adam learning rate of the smoothing pass."""
+    max_gaussians: int = 12000
+    """Gaussians used for tracking (a fixed random subset if the model has more)."""
+    seed: int = 0
+    """PRNG seed (pair sampling, Gaussian subset)."""
+
+
+class InitConfig(eqx.Module):
+    """Object pose initialisation on the first frame (also used for robot-view registration)."""
+
+    yaw_seeds: int = 8
+    """Distinct yaw seeds, evenly spaced over 360° (not endpoint-inclusive)."""
+    altitudes_deg: tuple[float, ...] = (30.0, 55.0)
+    """Camera elevation hypotheses (degrees above the object's horizontal plane); each yaw seed is
+    tried at each altitude."""
+    distance_m: float | None = None
+    """Camera-to-object distance prior; None: estimated from the matched region's image extent
+    (or from metric depth when given)."""
+    iters: int = 80
+    """Adam iterations per seed (all seeds in parallel under vmap)."""
+    refine_iters: int = 60
+    """Iterations refining the best seed on an ROI crop."""
+    lr_start: float = 1e-2
+    """Initial learning rate."""
+    lr_end: float = 4e-3
+    """Final learning rate."""
+    match_gaussians: int = 3000
+    """Gaussians whose decoded features are matched (mutual nearest neighbours) to the frame."""
+    depth_weight: float = 1.0
+    """Weight of the metric depth term when metric depth is given (registration)."""

@@ -1,0 +1,270 @@
+"""The 4D Differentiable Part Model: render the posed model at an ROI grid and score it against a
+frame's observations; per-frame Adam solve and joint temporal smoothing.
+
+Frames: the object frame is the scan's world frame; part p's frame has its origin at the rest
+centroid c_p (`splat.apply_part_poses`). A tracked state is `T_obj_part` (P poses) per frame and
+one `T_cam_obj` for the video (RSRD's release optimises only part poses after initialisation;
+whole-object motion is absorbed by the parts).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import optax
+from jaxtyping import Array, Float, Int
+
+from ..geometry import Camera, Intrinsics
+from ..parts import decode_rendered
+from ..splat import Gaussians, RenderConfig, apply_part_poses, render
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness
+
+_trace_counts = {"frame": 0, "smooth": 0}
+
+
+class TrackModel(eqx.Module):
+    """What tracking needs of an ObjectModel, as arrays (the constant side of `f(model, state)`)."""
+
+    gaussians: Gaussians
+    """Rest-pose Gaussians (object frame) whose features are [learned features | one-hot part]."""
+    decoder: eqx.Module
+    """Per-pixel feature decoder F -> D (PCA space)."""
+    part_centroids: Float[Array, "p 3"]
+    arap_pairs: Int[Array, "m 2"]
+    arap_weight: Float[Array, " m"]
+    num_features: int = eqx.field(static=True)
+    num_parts: int = eqx.field(static=True)
+
+    @staticmethod
+    def from_object_model(model, max_gaussians: int, seed: int = 0) -> TrackModel:
+        """Host-side: subsample Gaussians (keeping ARAP pairs whose ends survive), append one-hot
+        part channels to the features."""
+        g = model.gaussians
+        n = g.num_gaussians
+        rng = np.random.default_rng(seed)
+        pairs = np.asarray(model.arap_pairs, np.int64).reshape(-1, 2)
+        if n > max_gaussians:
+            # keep every Gaussian that is in an ARAP pair (boundary), fill up by opacity-weighted draw
+            must = np.unique(pairs.reshape(-1))[: max_gaussians // 2]
+            rest = np.setdiff1d(np.arange(n), must)
+            op = np.asarray(jax.nn.sigmoid(g.opacity_logits))[rest] + 1e-3
+            extra = rng.choice(rest, max_gaussians - len(must), replace=False, p=op / op.sum())
+            keep = np.sort(np.concatenate([must, extra]))
+        else:
+            keep = np.arange(n)
+        remap = -np.ones(n, np.int64)
+        remap[keep] = np.arange(len(keep))
+        pairs = remap[pairs] if len(pairs) else pairs
+        pairs = pairs[(pairs >= 0).all(axis=1)] if len(pairs) else np.zeros((0, 2), np.int64)
+        if len(pairs) == 0:  # keep shapes non-empty; a zero-weight dummy pair contributes nothing
+            pairs_w = np.zeros(1, np.float32)
+            pairs = np.zeros((1, 2), np.int64)
+        else:
+            pairs_w = np.ones(len(pairs), np.float32)
+        P = int(model.num_parts)
+        sub = jax.tree_util.tree_map(lambda x: x[keep], g)
+        onehot = jax.nn.one_hot(sub.part_ids, P, dtype=sub.features.dtype)
+        sub = eqx.tree_at(lambda x: x.features, sub, jnp.concatenate([sub.features, onehot], axis=-1))
+        return TrackModel(
+            gaussians=sub,
+            decoder=model.decoder,
+            part_centroids=jnp.asarray(model.part_centroids, jnp.float32),
+            arap_pairs=jnp.asarray(pairs, jnp.int32),
+            arap_weight=jnp.asarray(pairs_w),
+            num_features=int(g.num_features),
+            num_parts=P,
+        )
+
+
+class Rendered(eqx.Module):
+    features: Float[Array, "h w d"]
+    """Decoded features composited over the background feature."""
+    depth: Float[Array, "h w"]
+    alpha: Float[Array, "h w"]
+    rgb: Float[Array, "h w 3"]
+    part_weight: Float[Array, "h w p"]
+    means: Float[Array, "n 3"]
+
+
+def render_posed(
+    tm: TrackModel,
+    T_obj_part: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    intrinsics: Intrinsics,
+    bg_feature: Float[Array, " d"],
+    config: RenderConfig,
+) -> Rendered:
+    """Renders the model with parts at `T_obj_part` seen from `T_cam_obj` at `intrinsics`' grid."""
+    posed = apply_part_poses(tm.gaussians, T_obj_part, tm.part_centroids)
+    out = render(posed, Camera(intrinsics, T_cam_obj), config, jnp.zeros(3))
+    F = tm.num_features
+    dec = decode_rendered(tm.decoder, out.features[..., :F], out.alpha)
+    a = out.alpha[..., None]
+    feats = a * dec + (1.0 - a) * bg_feature
+    return Rendered(feats, out.depth, out.alpha, out.rgb, out.features[..., F:], posed.means)
+
+
+class FrameObs(eqx.Module):
+    """One frame's observations on the ROI grid (all shapes static for a video)."""
+
+    intrinsics: Intrinsics
+    """Camera of the ROI feature grid (crop and stride folded into the intrinsics)."""
+    features: Float[Array, "h w d"]
+    """Observed features, PCA space."""
+    weight: Float[Array, "h w"]
+    """1 where the pixel is usable (inside the image, not occluded by a hand), else 0."""
+    rgb: Float[Array, "h w 3"]
+    """Observed colour on the grid, [0, 1]."""
+    mono: Float[Array, "h w"]
+    """Monocular relative depth (larger = farther; only its order is used)."""
+    bg_feature: Float[Array, " d"]
+    """Feature assigned to pixels the object does not cover."""
+
+
+class Weights(eqx.Module):
+    feature: Float[Array, ""]
+    depth_rank: Float[Array, ""]
+    arap: Float[Array, ""]
+    rgb: Float[Array, ""]
+    arap_alpha: Float[Array, ""]
+    arap_scale: Float[Array, ""]
+    alpha_mask: Float[Array, ""]
+    step_scale: Float[Array, "6"]
+    """Per tangent coordinate step multiplier: translations in units of the object radius."""
+
+    @staticmethod
+    def from_config(cfg, separable: bool, object_radius: float) -> Weights:
+        a = cfg.arap_alpha if cfg.arap_alpha is not None else (0.1 if separable else 1.0)
+        f = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+        w = cfg.weights
+        ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
+        scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
+        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale)
+
+
+def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
+    return -jax.lax.reduce_window(-mask, -jnp.inf, jax.lax.max, (3, 3), (1, 1), "SAME")
+
+
+def frame_objective(
+    tm: TrackModel,
+    T_obj_part: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    obs: FrameObs,
+    w: Weights,
+    key: jax.Array,
+    config: RenderConfig,
+    num_pairs: int,
+) -> tuple[Float[Array, ""], dict]:
+    """Per-frame loss of part poses `T_obj_part` (P) and its terms."""
+    r = render_posed(tm, T_obj_part, T_cam_obj, obs.intrinsics, obs.bg_feature, config)
+    l_feat = feature_loss(r.features, obs.features, obs.weight)
+    l_rgb = jnp.sum(obs.weight[..., None] * jnp.abs(r.rgb - obs.rgb * r.alpha[..., None])) / jnp.maximum(
+        3 * jnp.sum(obs.weight), 1.0
+    )
+    # depth ranking on random pairs inside the eroded rendered mask, hand-free
+    m = jax.lax.stop_gradient(_erode((r.alpha > w.alpha_mask).astype(jnp.float32)) * obs.weight).reshape(-1)
+    idx = jax.random.choice(key, m.shape[0], (num_pairs, 2), p=m / jnp.maximum(m.sum(), 1e-6))
+    pair_w = (m.sum() > 1).astype(jnp.float32) * jnp.ones(num_pairs)
+    l_rank = depth_ranking_loss(r.depth.reshape(-1), obs.mono.reshape(-1), idx, pair_w)
+    l_arap = arap_loss(r.means, tm.gaussians.means, tm.arap_pairs, tm.arap_weight, w.arap_alpha, w.arap_scale)
+    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * l_arap
+    # per-part residual: feature error weighted by each part's rendered share of the pixel
+    err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
+    pw = r.part_weight * obs.weight[..., None]
+    part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
+    part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "part_residual": part_res, "part_visible": part_vis}
+    return total, aux
+
+
+def lr_schedule(lr0, lr1, n: int) -> Float[Array, " n"]:
+    """Exponential decay from lr0 to lr1 over n steps (array: sweeping lr does not recompile)."""
+    t = jnp.arange(n, dtype=jnp.float32) / max(n - 1, 1)
+    return lr0 * (lr1 / lr0) ** t
+
+
+@eqx.filter_jit
+def solve_frame(
+    tm: TrackModel,
+    T_init: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    obs: FrameObs,
+    w: Weights,
+    lrs: Float[Array, " s"],
+    key: jax.Array,
+    config: RenderConfig,
+    num_pairs: int,
+) -> tuple[jaxlie.SE3, dict]:
+    """Per-frame Adam on tangent updates of every part pose: `T = T_init @ exp(δ)`, δ ∈ R^{P×6}
+    (about the part centroid, in the part frame). One compiled function per video."""
+    _trace_counts["frame"] += 1
+    P = T_init.wxyz_xyz.shape[0]
+    opt = optax.scale_by_adam()
+
+    def loss_fn(delta, k):
+        T = jaxlie.SE3(T_init.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+        return frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs)
+
+    def step(carry, xs):
+        delta, state = carry
+        lr, k = xs
+        (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(delta, k)
+        g = jnp.where(jnp.isfinite(g), g, 0.0)
+        upd, state = opt.update(g, state)
+        return (delta - lr * w.step_scale * upd, state), loss
+
+    delta0 = jnp.zeros((P, 6))
+    keys = jax.random.split(key, lrs.shape[0] + 1)
+    (delta, _), losses = jax.lax.scan(step, (delta0, opt.init(delta0)), (lrs, keys[1:]))
+    T = jaxlie.SE3(T_init.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+    _, aux = frame_objective(tm, T, T_cam_obj, obs, w, keys[0], config, num_pairs)
+    aux["loss_curve"] = losses
+    return T, aux
+
+
+@eqx.filter_jit
+def smooth_step(
+    tm: TrackModel,
+    delta: Float[Array, "t p 6"],
+    T_base: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    obs: FrameObs,
+    w: Weights,
+    frames: Int[Array, " b"],
+    smooth_weight: Float[Array, ""],
+    key: jax.Array,
+    config: RenderConfig,
+    num_pairs: int,
+) -> tuple[Float[Array, ""], Float[Array, "t p 6"]]:
+    """Loss and gradient of the joint smoothing objective: data terms on a frame minibatch
+    (vmapped renders) + first-difference smoothness over all frames."""
+    _trace_counts["smooth"] += 1
+
+    def loss_fn(delta):
+        T_all = jaxlie.SE3(T_base.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+        sm = pose_smoothness(T_all)
+        T_b = jaxlie.SE3(T_all.wxyz_xyz[frames])
+        obs_b = jax.tree_util.tree_map(lambda x: x[frames], obs)
+        keys = jax.random.split(key, frames.shape[0])
+        data, _ = jax.vmap(lambda T, o, k: frame_objective(tm, T, T_cam_obj, o, w, k, config, num_pairs))(T_b, obs_b, keys)
+        return jnp.mean(data) + smooth_weight * sm * delta.shape[0]
+
+    return jax.value_and_grad(loss_fn)(delta)
+
+
+def extrapolate(prev: jaxlie.SE3, prev2: jaxlie.SE3 | None, factor: float) -> jaxlie.SE3:
+    """Damped constant velocity: `prev @ exp(factor · log(prev2⁻¹ prev))` per part."""
+    if prev2 is None or factor == 0:
+        return prev
+    d = (prev2.inverse() @ prev).log()
+    return prev @ jaxlie.SE3.exp(factor * d)
+
+
+def stack_obs(obs: list[FrameObs]) -> FrameObs:
+    """T per-frame observations -> one batched FrameObs (leading axis T)."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *obs)
+

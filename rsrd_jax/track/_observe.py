@@ -1,0 +1,208 @@
+"""Frame observations on an ROI grid: crop, features (PCA space), occluder masks, mono-depth.
+
+Occluder masks and monocular depth come from small sources behind one interface each, so a real
+segmenter or depth network plugs in beside the studio's oracles.
+"""
+
+from __future__ import annotations
+
+import abc
+from pathlib import Path
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry import Intrinsics
+from ..io import ArtefactError, read_depth_png, read_label_png
+from ._dpm import FrameObs
+
+
+# ------------------------------------------------------------------------------------ sources
+class OccluderSource(abc.ABC):
+    """Per-frame occluder (hand/person) masks: True where the object may be hidden."""
+
+    name: str = "occluder"
+
+    @abc.abstractmethod
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        """H×W bool mask for frame `t` (the full-resolution RGB frame is given)."""
+
+
+class NoOccluder(OccluderSource):
+    name = "none"
+
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        return np.zeros(frame.shape[:2], bool)
+
+
+class StudioHandMasks(OccluderSource):
+    """The studio's ground-truth hand masks (`demo/gt/hand_mask/NNNNN.png`), dilated by 1 pixel."""
+
+    name = "studio hand masks (oracle)"
+
+    def __init__(self, demo_dir: str | Path):
+        self.dir = Path(demo_dir) / "gt" / "hand_mask"
+        if not self.dir.is_dir():
+            raise ArtefactError(f"studio hand masks not found: {self.dir}")
+
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        m = read_label_png(self.dir / f"{t:05d}.png") > 0
+        return cv2.dilate(m.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+
+
+class MonoDepthSource(abc.ABC):
+    """Per-frame relative depth: larger = farther; only the order of values is used."""
+
+    name: str = "mono-depth"
+
+    @abc.abstractmethod
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        """H×W float relative depth for frame `t`."""
+
+
+class NoMonoDepth(MonoDepthSource):
+    name = "none"
+
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        return np.zeros(frame.shape[:2], np.float32)
+
+
+class StudioDepthOracle(MonoDepthSource):
+    """ORACLE: the studio's true depth through an unknown monotone transform plus noise, so only
+    order information survives (a stand-in for a monocular depth network). Label it in reports."""
+
+    name = "studio relative-depth ORACLE"
+
+    def __init__(self, demo_dir: str | Path, seed: int = 0, noise: float = 0.01):
+        self.dir = Path(demo_dir) / "gt" / "depth"
+        if not self.dir.is_dir():
+            raise ArtefactError(f"studio depth not found: {self.dir}")
+        rng = np.random.default_rng(seed)
+        self.gamma = float(rng.uniform(0.5, 2.0))
+        self.scale = float(rng.uniform(0.5, 3.0))
+        self.noise = noise
+        self.seed = seed
+
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        d = read_depth_png(self.dir / f"{t:05d}.png")
+        d = np.where(d > 0, d, d[d > 0].max(initial=1.0) * 3)  # sky: far
+        rng = np.random.default_rng(self.seed * 100003 + t)
+        return (self.scale * d**self.gamma * np.exp(rng.normal(0, self.noise, d.shape))).astype(np.float32)
+
+
+class OnnxDepthAnything(MonoDepthSource):
+    """A user-supplied Depth-Anything (or similar) ONNX model. Its output is *disparity* (larger =
+    nearer), so it is inverted to a relative depth; input normalised with ImageNet statistics."""
+
+    name = "Depth-Anything ONNX"
+
+    def __init__(self, path: str | Path, input_size: int = 518, output_is_disparity: bool = True):
+        import onnxruntime as ort
+
+        path = Path(path)
+        if not path.is_file():
+            raise ArtefactError(f"depth ONNX model not found: {path}")
+        self.session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        self.input_name = self.session.get_inputs()[0].name
+        self.size = input_size
+        self.disparity = output_is_disparity
+
+    def __call__(self, t: int, frame: np.ndarray) -> np.ndarray:
+        h, w = frame.shape[:2]
+        x = cv2.resize(frame, (self.size, self.size), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        x = (x - np.array([0.485, 0.456, 0.406], np.float32)) / np.array([0.229, 0.224, 0.225], np.float32)
+        out = self.session.run(None, {self.input_name: x.transpose(2, 0, 1)[None]})[0]
+        out = np.asarray(out, np.float32).reshape(out.shape[-2], out.shape[-1])
+        out = cv2.resize(out, (w, h), interpolation=cv2.INTER_LINEAR)
+        return 1.0 / np.maximum(out, 1e-6) if self.disparity else out
+
+
+# ------------------------------------------------------------------------------------ ROI
+def roi_box(uv: np.ndarray, width: int, height: int, margin: float, min_side: float = 32.0) -> tuple[float, float, float]:
+    """Square crop (x0, y0, side) in pixels around projected points `uv` (N×2), grown by `margin`
+    of the extent per side. The box may extend past the image (padding is masked out)."""
+    uv = np.asarray(uv, np.float64)
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    if len(uv) == 0:
+        s = float(max(width, height))
+        return (width - s) / 2, (height - s) / 2, s
+    lo, hi = np.percentile(uv, 1, axis=0), np.percentile(uv, 99, axis=0)
+    ext = hi - lo
+    side = float(max(ext.max() * (1 + 2 * margin), min_side))
+    side = min(side, 2.0 * max(width, height))
+    c = (lo + hi) / 2
+    return float(c[0] - side / 2), float(c[1] - side / 2), side
+
+
+def full_frame_box(width: int, height: int) -> tuple[float, float, float]:
+    """The square box covering the whole frame (letterboxed)."""
+    s = float(max(width, height))
+    return (width - s) / 2, (height - s) / 2, s
+
+
+def crop(img: np.ndarray, box: tuple[float, float, float], size: int, interp: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Resamples the square `box` (x0, y0, side; continuous pixel coords, centres at +0.5) of `img`
+    to `size`×`size`; outside the image is 0."""
+    x0, y0, s = box
+    k = size / s
+    M = np.array([[k, 0, (0.5 - x0) * k - 0.5], [0, k, (0.5 - y0) * k - 0.5]], np.float64)
+    if interp == cv2.INTER_AREA:  # area downsampling: blur by the scale first, then linear
+        sigma = max(0.0, 0.5 / k - 0.5)
+        if sigma > 0.3:
+            img = cv2.GaussianBlur(img, (0, 0), sigma)
+        interp = cv2.INTER_LINEAR
+    return cv2.warpAffine(img, M, (size, size), flags=interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def box_intrinsics(K: Intrinsics, box: tuple[float, float, float], size: int) -> Intrinsics:
+    """Intrinsics of the `size`×`size` resampling of `box` from the camera `K`."""
+    x0, y0, s = box
+    k = size / s
+    return Intrinsics(K.fx * k, K.fy * k, (K.cx - x0) * k, (K.cy - y0) * k, size, size)
+
+
+class Observer:
+    """Builds `FrameObs` for a video: ROI crop -> extractor -> PCA, plus masks and mono-depth."""
+
+    def __init__(self, extractor, pca, intrinsics: Intrinsics, roi_size: int,
+                 occluder: OccluderSource | None = None, mono: MonoDepthSource | None = None):  # fmt: skip
+        self.extractor, self.pca, self.K = extractor, pca, intrinsics
+        self.roi = int(roi_size)
+        self.grid = tuple(int(x) for x in extractor.output_shape(self.roi, self.roi))
+        if self.grid[0] != self.grid[1]:
+            raise ValueError(f"feature grid of a square ROI must be square, got {self.grid}")
+        self.occluder = occluder or NoOccluder()
+        self.mono = mono or NoMonoDepth()
+
+    @property
+    def grid_size(self) -> int:
+        return self.grid[0]
+
+    def grid_intrinsics(self, box) -> Intrinsics:
+        return box_intrinsics(self.K, box, self.grid_size)
+
+    def observe(self, t: int, frame: np.ndarray, box) -> FrameObs:
+        """The observations of frame `t` in `box` (x0, y0, side)."""
+        g = self.grid_size
+        roi_img = crop(frame, box, self.roi)
+        fmap = self.extractor(roi_img)
+        feats = np.asarray(self.pca.project(fmap.features), np.float32).reshape(g, g, -1)
+        inside = crop(np.ones(frame.shape[:2], np.float32), box, g, cv2.INTER_AREA) > 0.99
+        occ = crop(self.occluder(t, frame).astype(np.float32), box, g, cv2.INTER_AREA) > 0.01
+        weight = (inside & ~occ).astype(np.float32)
+        rgb = crop(frame, box, g, cv2.INTER_AREA).astype(np.float32) / 255.0
+        mono = crop(self.mono(t, frame).astype(np.float32), box, g, cv2.INTER_AREA)
+        # background feature: median of the usable cells on the ROI's outer ring
+        ring = np.zeros((g, g), bool)
+        ring[:2], ring[-2:], ring[:, :2], ring[:, -2:] = True, True, True, True
+        sel = ring & (weight > 0)
+        bg = np.median(feats[sel], axis=0) if sel.any() else np.median(feats.reshape(-1, feats.shape[-1]), axis=0)
+        return FrameObs(
+            intrinsics=self.grid_intrinsics(box),
+            features=jnp.asarray(feats),
+            weight=jnp.asarray(weight),
+            rgb=jnp.asarray(rgb),
+            mono=jnp.asarray(mono),
+            bg_feature=jnp.asarray(bg, jnp.float32),
+        )

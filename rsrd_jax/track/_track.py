@@ -1,0 +1,184 @@
+"""`track_video`: initialise on frame 0, solve every frame, smooth jointly, return a PartTrajectory."""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import optax
+from tqdm.auto import tqdm
+
+from ..geometry import Camera, project_points
+from ..io import ArtefactError, Demo, PartTrajectory
+from ..splat import apply_part_poses, choose_config, rest_part_poses
+from ._config import InitConfig, TrackConfig
+from ._dpm import TrackModel, Weights, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
+from ._init import initialize_pose
+from ._observe import MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+
+
+def _roi_for(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, K, margin: float):
+    posed = apply_part_poses(tm.gaussians, T_obj_part, tm.part_centroids)
+    uv, z = project_points(K, T_cam_obj @ posed.means)
+    uv = np.asarray(uv)[np.asarray(z) > 0]
+    return roi_box(uv, K.width, K.height, margin)
+
+
+def track_video(
+    model,
+    demo: Demo,
+    config: TrackConfig = TrackConfig(),
+    init: InitConfig = InitConfig(),
+    occluder: OccluderSource | None = None,
+    mono: MonoDepthSource | None = None,
+    separable: bool | None = None,
+    extractor=None,
+    progress: bool = True,
+    log=None,
+) -> PartTrajectory:
+    """Tracks every part of `model` through `demo` (4D-DPM, RSRD §4).
+
+    Args:
+        model: an `ObjectModel` (rsrd_jax.parts).
+        demo: the decoded demo video with its intrinsics.
+        config, init: tracking and initialisation options.
+        occluder: hand/person mask source (default none).
+        mono: monocular relative depth source (default none: no ranking term).
+        separable: object parts come apart (ARAP α 0.1); default from the model's metadata.
+        extractor: the feature extractor; default rebuilt from `model.feature_backend`.
+        progress: show a progress bar.
+        log: optional callback `log(stage, t, dict)` (rerun logging in the CLI).
+
+    Returns:
+        PartTrajectory with per-frame part poses, object pose, residuals and metadata
+        (timings: init, per-frame, smoothing, compile).
+    """
+    if demo.num_frames < 1:
+        raise ArtefactError(f"{demo.video_path}: the demo has no frames")
+    if extractor is None:
+        from ..parts import make_extractor
+
+        extractor = make_extractor(model.feature_backend)
+    if extractor.feature_dim != model.pca.input_dim:
+        raise ArtefactError(
+            f"feature backend mismatch: the extractor gives {extractor.feature_dim}-d features but the "
+            f"model's PCA expects {model.pca.input_dim}-d ({model.feature_backend})"
+        )
+    if separable is None:
+        separable = bool(model.meta.get("separable", False))
+    K = demo.intrinsics
+    t_start = time.perf_counter()
+    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed)
+    obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono)
+    rest = rest_part_poses(tm.part_centroids)
+    timings: dict[str, float] = {}
+
+    # ---- initialisation on frame 0
+    t0 = time.perf_counter()
+    frame0 = demo.frames[0]
+    init_res, init_info = initialize_pose(
+        tm, lambda box: obsr.observe(0, frame0, box), frame0, K, init, full_frame_box(K.width, K.height),
+        lambda T: _roi_for(tm, rest, T, K, config.roi_margin),
+    )  # fmt: skip
+    T_cam_obj = init_res.T_cam_obj
+    timings["init_s"] = time.perf_counter() - t0
+
+    # ---- per-frame pass
+    means = np.asarray(tm.gaussians.means)
+    radius = float(np.percentile(np.linalg.norm(means - means.mean(0), axis=1), 90))
+    w = Weights.from_config(config, separable, radius)
+    lrs = lr_schedule(config.lr_start, config.lr_end, config.steps_per_frame)
+    box0 = _roi_for(tm, rest, T_cam_obj, K, config.roi_margin)
+    posed0 = apply_part_poses(tm.gaussians, rest, tm.part_centroids)
+    rcfg = choose_config(posed0, Camera(obsr.grid_intrinsics(box0), T_cam_obj), headroom=2.0)
+    key = jax.random.key(config.seed)
+    T_parts: list[jaxlie.SE3] = []
+    obs_all, residual, visible, losses = [], [], [], []
+    t_frames = time.perf_counter()
+    t_first = None
+    bar = tqdm(range(demo.num_frames), desc="track", disable=not progress)
+    for t in bar:
+        prev = T_parts[-1] if T_parts else rest
+        prev2 = T_parts[-2] if len(T_parts) > 1 else None
+        T_guess = extrapolate(prev, prev2, config.velocity_factor)
+        box = _roi_for(tm, T_guess, T_cam_obj, K, config.roi_margin)
+        obs = obsr.observe(t, demo.frames[t], box)
+        key, sub = jax.random.split(key)
+        tf = time.perf_counter()
+        T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
+        T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
+        if t_first is None:
+            t_first = time.perf_counter() - tf
+        T_parts.append(T)
+        obs_all.append(obs)
+        residual.append(np.asarray(aux["part_residual"]))
+        visible.append(np.asarray(aux["part_visible"]))
+        losses.append(float(aux["loss_curve"][-1]))
+        bar.set_postfix(loss=f"{losses[-1]:.3f}")
+        if log is not None:
+            log("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux})
+    timings["frames_s"] = time.perf_counter() - t_frames
+    timings["frame_compile_s"] = float(t_first or 0.0)
+
+    # ---- joint temporal smoothing
+    T_stack = jaxlie.SE3(jnp.stack([T.wxyz_xyz for T in T_parts]))
+    t_sm = time.perf_counter()
+    if config.smooth_iters > 0 and demo.num_frames > 2:
+        obs_b = stack_obs(obs_all)
+        delta = jnp.zeros(T_stack.wxyz_xyz.shape[:2] + (6,))
+        opt = optax.adam(config.smooth_lr)
+        state = opt.init(delta)
+        rng = np.random.default_rng(config.seed)
+        B = min(config.smooth_batch, demo.num_frames)
+        sw = jnp.asarray(config.smooth_weight, jnp.float32)
+        for it in tqdm(range(config.smooth_iters), desc="smooth", disable=not progress):
+            frames = jnp.asarray(rng.choice(demo.num_frames, B, replace=False), jnp.int32)
+            key, sub = jax.random.split(key)
+            val, g = smooth_step(tm, delta, T_stack, T_cam_obj, obs_b, w, frames, sw, sub, rcfg, config.rank_pairs)
+            g = jnp.where(jnp.isfinite(g), g, 0.0)
+            upd, state = opt.update(g, state)
+            delta = optax.apply_updates(delta, upd * w.step_scale)
+        T_stack = T_stack @ jaxlie.SE3.exp(delta)
+    timings["smooth_s"] = time.perf_counter() - t_sm
+    timings["total_s"] = time.perf_counter() - t_start
+
+    T_obj_part = np.asarray(T_stack.wxyz_xyz, np.float64)
+    T_co = jnp.broadcast_to(T_cam_obj.wxyz_xyz, (demo.num_frames, 7))
+    rest_inv = rest.inverse()
+    T_cwp = jaxlie.SE3(T_co[:, None]) @ T_stack @ jaxlie.SE3(jnp.broadcast_to(rest_inv.wxyz_xyz, T_stack.wxyz_xyz.shape))
+    meta = {
+        "num_frames": demo.num_frames,
+        "num_parts": tm.num_parts,
+        "video": str(demo.video_path),
+        "fps": demo.fps,
+        "part_centroids": np.asarray(tm.part_centroids).tolist(),
+        "init": init_info,
+        "timings_s": timings,
+        "frames_per_second": demo.num_frames / max(timings["frames_s"] + timings["smooth_s"], 1e-9),
+        "render_capacity": rcfg.capacity,
+        "occluder": getattr(obsr.occluder, "name", "?"),
+        "mono_depth": getattr(obsr.mono, "name", "?"),
+        "separable": separable,
+        "config": _config_dict(config),
+        "init_config": _config_dict(init),
+    }
+    return PartTrajectory(
+        T_obj_part=T_obj_part,
+        T_cam_obj=np.asarray(T_co, np.float64),
+        T_cam_world_part=np.asarray(T_cwp.wxyz_xyz, np.float64),
+        residual=np.stack(residual).astype(np.float64),
+        visible=np.stack(visible).astype(np.float64),
+        loss=np.asarray(losses, np.float64),
+        meta=meta,
+    )
+
+
+def _config_dict(cfg) -> dict:
+    out = {}
+    for k in cfg.__dataclass_fields__:
+        v = getattr(cfg, k)
+        out[k] = _config_dict(v) if hasattr(v, "__dataclass_fields__") else v
+    return out
