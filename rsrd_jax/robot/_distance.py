@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 _EPS = 1e-9
@@ -67,20 +66,18 @@ def box_sdf(x: Float[Array, "*n 3"], half: Float[Array, "*#n 3"]) -> Float[Array
     return outside + inside
 
 
-_PAIR_J = np.array([j for j in range(6) for k in range(j + 1, 6) if k != j + 3])
-_PAIR_K = np.array([k for j in range(6) for k in range(j + 1, 6) if k != j + 3])
-
-
 def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
     """Parameter t in [0, 1] minimising the box SDF along x(t) = a + t d (box frame), exactly.
 
     sdf(x(t)) is convex in t. Where it is >= 0 its square is piecewise quadratic,
-    sum_i max(|a_i + t d_i| - h_i, 0)^2, with pieces delimited by the kinks t = (+-h_i - a_i) / d_i;
-    where it is < 0 it equals max_j L_j(t) over the six linear functions L = +-(a_i + t d_i) - h_i.
-    So the minimiser is an end point, a kink, a crossing of two L's, or the stationary point of one
-    quadratic piece: all 2 + 9 + 12 + 7 candidates are evaluated and the best is kept (no
-    iterations, no sort). Coordinates are kept as separate (*b,) arrays with candidates on a
-    trailing axis, so XLA sees long vectors and few ops.
+    sum_i max(|a_i + t d_i| - h_i, 0)^2, with pieces delimited by the kinks t = (+-h_i - a_i) / d_i,
+    so its minimiser is an end point, a kink or the stationary point of one quadratic piece: all
+    2 + 9 + 7 candidates are evaluated and the best kept (no iterations, no sort). This is exact
+    whenever the axis stays outside the box. If the axis enters the box, an interval between kinks
+    lies inside and its candidate (the midpoint) has a negative SDF, so the result is negative but
+    only an upper bound of the deepest point (exact depth would need the crossings of the six
+    linear pieces +-(a_i + t d_i) - h_i as candidates too). Coordinates are kept as separate arrays
+    with candidates on a trailing axis, so XLA sees long vectors and few ops.
     """
     A = [a[..., i, None] for i in range(3)]
     D = [d[..., i, None] for i in range(3)]
@@ -90,12 +87,6 @@ def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
     Ds = jnp.where(ok, Dc, 1.0)
     kinks = jnp.concatenate([(Hc - Ac) / Ds, (-Hc - Ac) / Ds, -Ac / Ds], axis=-1)
     kinks = jnp.where(jnp.concatenate([ok, ok, ok], axis=-1), kinks, 0.0)  # (*b, 9)
-    # Linear pieces L_j(t) = c0_j + c1_j t; crossings of pairs on different axes.
-    c0 = jnp.concatenate([Ac - Hc, -Ac - Hc], axis=-1)
-    c1 = jnp.concatenate([Dc, -Dc], axis=-1)
-    den = c1[..., _PAIR_J] - c1[..., _PAIR_K]
-    okd = jnp.abs(den) > 1e-12
-    cross = jnp.where(okd, (c0[..., _PAIR_K] - c0[..., _PAIR_J]) / jnp.where(okd, den, 1.0), 0.0)
     # Quadratic pieces: intervals [b, next bound above b] between 0, 1 and the six kinks.
     zero = jnp.zeros_like(A[0])
     lo = jnp.concatenate([zero, jnp.clip(kinks[..., :6], 0.0, 1.0)], axis=-1)  # (*b, 7)
@@ -111,10 +102,11 @@ def _segment_box_param(a: Array, d: Array, half: Array) -> Array:
         dsq = dsq + jnp.where(act, D[i] * D[i], 0.0)
     okq = dsq > 1e-12
     stat = jnp.where(okq, jnp.clip(num / jnp.where(okq, dsq, 1.0), lo, hi), mid)
-    cand = jnp.clip(jnp.concatenate([zero, zero + 1.0, kinks, cross, stat], axis=-1), 0.0, 1.0)
+    cand = jnp.clip(jnp.concatenate([zero, zero + 1.0, kinks, stat], axis=-1), 0.0, 1.0)
     ex = [jnp.abs(A[i] + cand * D[i]) - H[i] for i in range(3)]
-    out = jnp.sqrt(sum(jnp.maximum(e, 0.0) ** 2 for e in ex))  # comparison only: no safe norm
-    out = out + jnp.minimum(jnp.maximum(jnp.maximum(ex[0], ex[1]), ex[2]), 0.0)
+    # Ordering key of the SDF: squared distance outside, the (negative) max excess inside.
+    inner = jnp.maximum(jnp.maximum(ex[0], ex[1]), ex[2])
+    out = jnp.where(inner > 0.0, sum(jnp.maximum(e, 0.0) ** 2 for e in ex), inner)
     return jnp.take_along_axis(cand, jnp.argmin(out, axis=-1)[..., None], axis=-1)[..., 0]
 
 
@@ -124,8 +116,9 @@ def capsule_box(
 ) -> Float[Array, "*b"]:
     """Signed distance between capsules (p, q, r) and oriented boxes (rotation, centre, half
     extents), all in the world frame, batched over leading axes: min over the capsule axis of the
-    box SDF minus r. Exact when separated; when overlapping it is the depth of the deepest axis
-    point plus r (a penetration measure, not MuJoCo's contact depth)."""
+    box SDF minus r. Exact while the capsule axis is outside the box (any separation, and overlaps
+    up to the radius); once the axis enters the box the value is negative but a bound, not the exact
+    depth (a penetration measure, not MuJoCo's contact depth)."""
     a = jnp.einsum("...j,...jk->...k", p - c_box, R_world_box)
     b = jnp.einsum("...j,...jk->...k", q - c_box, R_world_box)
     t = jax.lax.stop_gradient(_segment_box_param(a, b - a, half))
