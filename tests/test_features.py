@@ -11,6 +11,7 @@ import struct
 from pathlib import Path
 
 import cv2
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -652,3 +653,17 @@ def test_extractor_chunking_matches_single_pass(extractor, rng):
         net=extractor.net, config=EfficientNetConfig(strides=(2,), chunk_size=8)
     )
     np.testing.assert_allclose(chunked(imgs).features, whole(imgs).features, atol=1e-5)
+
+
+def test_extractor_traces_once_per_image_size(extractor, rng):
+    """Many frames of one size, through fresh extractor objects, compile once."""
+    from rsrd_jax.features._extractor import _efficientnet_features
+
+    cfg = EfficientNetConfig(strides=(2,), chunk_size=3)
+    before = eqx.debug.get_num_traces(_efficientnet_features)
+    for _ in range(3):
+        ext = EfficientNetExtractor(net=extractor.net, config=cfg)
+        ext(rng.integers(0, 256, (2, 64, 32, 3), dtype=np.uint8))
+    assert eqx.debug.get_num_traces(_efficientnet_features) == before + 1
+    ext(rng.integers(0, 256, (2, 96, 32, 3), dtype=np.uint8))  # a new size traces again
+    assert eqx.debug.get_num_traces(_efficientnet_features) == before + 2

@@ -167,6 +167,7 @@ def _ceil_div(a: int, b: int) -> int:
 
 
 @eqx.filter_jit
+@eqx.debug.assert_max_traces(max_traces=None)  # counts traces (tests: one per image size)
 def _efficientnet_features(
     net: EfficientNetLite0, x: Float[Array, "n h w 3"], config: EfficientNetConfig
 ) -> Float[Array, "n h2 w2 d"]:
