@@ -252,7 +252,7 @@ class EfficientNetExtractor(FeatureExtractor):
         return FeatureMap(features=feats, stride=(h / gh, w / gw))
 
     def logits(self, images) -> Float[Array, "*batch 1000"]:
-        """ImageNet logits (1000 classes) of ``*batch × H × W × 3`` images (config's scaling)."""
+        """ImageNet logits (1000) of ``*batch × H × W × 3`` images at their own size (no resize)."""
         x, batch = as_float_images(images)
         return _efficientnet_logits(self.net, jnp.asarray(x), self.config).reshape(batch + (1000,))
 
