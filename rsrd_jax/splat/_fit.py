@@ -318,9 +318,12 @@ _bin_probe = jax.jit(bin_gaussians, static_argnums=2)
 
 
 def _make_optimizer(cfg: FitConfig, extent: float, n_iters: int):
-    means_lr = optax.exponential_decay(
-        cfg.lr_means * extent, n_iters, cfg.lr_means_final / cfg.lr_means, end_value=cfg.lr_means_final * extent
-    )
+    if cfg.lr_means > 0:
+        means_lr = optax.exponential_decay(
+            cfg.lr_means * extent, n_iters, cfg.lr_means_final / cfg.lr_means, end_value=cfg.lr_means_final * extent
+        )
+    else:
+        means_lr = 0.0
     txs = {
         "means": optax.adam(means_lr, eps=1e-15),
         "quats": optax.adam(cfg.lr_quats, eps=1e-15),
