@@ -206,8 +206,7 @@ def test_self_and_table_distances_match_mujoco_c(yumi, rng):
     n_pen = 0
     for k, q in enumerate(qs):
         m, d = _mj_state(yumi, q.astype(float))
-        pairs = [(g.cap_names[i], g.cap_names[j]) for i, j in cc]
-        pairs += [(g.cap_names[i], g.box_names[b]) for i, b in cb]
+        pairs = g.self_pair_names()
         got = np.asarray(res.self_distance[k])
         pairs += [(n, "table") for n in g.cap_names]
         got = np.concatenate([got, np.asarray(res.table_distance[k])])
@@ -375,6 +374,19 @@ def test_mjx_penetration_agrees_with_distances(yumi, rng):
     pen = robot.mjx_penetration(yumi, jnp.asarray(qs))
     res = robot.collision_distances(yumi, jnp.asarray(qs))
     assert not bool(pen.penetrating[0])
+    # MJX agrees with MuJoCo C contacts (mj_collision) on which configurations penetrate.
+    m = yumi.mj_model
+    robot_bodies = {m.body(n).id for n in robot.LINK_NAMES}
+    c_pen = []
+    for q in qs:
+        d = mujoco.MjData(m)
+        d.qpos[:] = yumi.qpos(q.astype(float))
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        c_pen.append(any(c.dist < 0 and (m.geom_bodyid[c.geom1] in robot_bodies or m.geom_bodyid[c.geom2] in robot_bodies)
+                         for c in d.contact[: d.ncon]))
+    np.testing.assert_array_equal(np.asarray(pen.penetrating), c_pen)
+    assert 0 < sum(c_pen) < len(c_pen)  # both outcomes occur
     clear = np.abs(np.asarray(res.min_table)) > 0.01  # finger pads are boxes inside finger capsules
     np.testing.assert_array_equal(np.asarray(pen.penetrating)[clear], np.asarray(res.table_collision)[clear])
     assert pen.dist.shape[-1] == pen.geom.shape[0] > 0

@@ -149,7 +149,7 @@ class CollisionResult(eqx.Module):
     min_table: Float[Array, "*batch"]
     """Smallest robot-table distance."""
     min_object: Float[Array, "*batch"]
-    """Smallest robot-object distance over the capsules selected by ``object_links`` (+inf if none)."""
+    """Smallest robot-object distance (without the hand if ``hand_touches_object``; +inf if no object)."""
     in_collision: Bool[Array, "*batch"]
     """Any minimum below the margin."""
     self_collision: Bool[Array, "*batch"]

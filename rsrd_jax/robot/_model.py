@@ -93,6 +93,12 @@ class RobotGeometry(eqx.Module):
     table_half: Float[Array, "3"]
     """Table box half extents (m)."""
 
+    def self_pair_names(self) -> list[tuple[str, str]]:
+        """Geom names of each entry of ``CollisionResult.self_distance`` (host helper)."""
+        cc = [(self.cap_names[i], self.cap_names[j]) for i, j in np.asarray(self.self_cc)]
+        cb = [(self.cap_names[i], self.box_names[b]) for i, b in np.asarray(self.self_cb)]
+        return cc + cb
+
 
 class YumiModel(eqx.Module):
     """The YuMi loaded once on the host: kinematics and collision arrays for JAX, the C model and
