@@ -19,9 +19,10 @@ import jaxlie
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._constants import LINK_NAMES
 from ._distance import capsule_box, capsule_capsule
 from ._kinematics import _check_finite, _fk_single
-from ._model import RobotGeometry, YumiModel, Kinematics, check_q
+from ._model import YumiModel, check_q
 
 
 class ObjectGeometry(eqx.Module):
@@ -330,13 +331,8 @@ def mjx_penetration(model: YumiModel, q: Float[Array | np.ndarray, "*batch 16"])
 
 def _robot_geom_mask(model: YumiModel) -> tuple[bool, ...]:
     m = model.mj_model
-    robot_bodies = {m.body(n).id for n in _link_names()}
+    robot_bodies = {m.body(n).id for n in LINK_NAMES}
     return tuple(bool(int(m.geom_bodyid[g]) in robot_bodies) for g in range(m.ngeom))
-
-
-def _link_names():
-    from ._constants import LINK_NAMES
-    return LINK_NAMES
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3, 4))

@@ -12,18 +12,16 @@ from ._constants import (
     HOME_Q,
     JOINT_LOWER,
     JOINT_NAMES,
+    JOINT_UPPER,
+    LEFT_ARM_JOINTS,
     LINK_NAMES,
     NUM_JOINTS,
+    RIGHT_ARM_JOINTS,
     SELF_COLLISION_IGNORE,
     TABLE_CENTER,
     TABLE_HALF_EXTENTS,
-    TCP_SITES,
-    JOINT_UPPER,
-    LEFT_ARM_JOINTS,
-    RIGHT_ARM_JOINTS,
 )
 from ._scene import build_scene_spec
-
 
 
 class Kinematics(eqx.Module):
