@@ -132,6 +132,10 @@ class Cost(eqx.Module):
     """Number of earlier keyframes each term couples to (0 unary, 1 velocity, 2 acceleration)."""
     name: str = eqx.field(static=True, default="")
     """Name used in error messages."""
+    jac: Callable[..., tuple[Array, Array]] | None = eqx.field(static=True, default=None)
+    """Optional analytic Jacobian ``(x, data_t, params) -> (r, J)`` replacing ``jacfwd``; ``J``
+    is d r / d delta in tangent coordinates, shape (R, D) for unary terms and (R, b+1, D) for
+    windows. Implicit differentiation still uses autodiff of ``fn``."""
 
 
 class BandedProblem(eqx.Module):
@@ -238,6 +242,10 @@ def _group_jacobian(problem: BandedProblem, cost: Cost, x: Array, d: Any, params
     xw = _windows(x, b)
 
     def term(xw_t, d_t):
+        if cost.jac is not None:
+            r, J = cost.jac(xw_t, d_t, params)
+            return r, J.reshape(r.shape[0], b + 1, D)
+
         def f(delta):
             xr = problem._retract(xw_t if b else xw_t[None], delta)
             r = cost.fn(xr if b else xr[0], d_t, params)
