@@ -279,14 +279,22 @@ def test_pose_refinement_reduces_pose_error():
                         for n, t in zip(noise, T)])  # fmt: skip
     cfg = FitConfig(iterations=300, block=100, max_gaussians=8, densify_from=10**9, prune_opacity=0.0,
                     lr_means=0.0, lr_means_final=0.0, lr_colours=0.0, lr_opacity=0.0, lr_scales=0.0, lr_quats=0.0,
-                    refine_poses=True, lr_pose=2e-3)  # fmt: skip
+                    refine_poses=True, lr_pose=1e-3)  # fmt: skip
     res = fit_gaussians(g, np.stack(imgs), intr, T_noisy, None, cfg)
     T_ref = np.asarray(jaxlie.SE3(res.T_cam_world).as_matrix())
 
-    def err(A):
-        return np.mean([np.linalg.norm(np.linalg.inv(a)[:3, 3] - np.linalg.inv(b)[:3, 3]) for a, b in zip(A, T)])
+    def reproj(A):  # mean reprojection error (px) of a cube of points around the scene
+        pts = jnp.asarray(np.stack(np.meshgrid(*[[-0.1, 0.1]] * 3), -1).reshape(-1, 3), jnp.float32)
+        err = []
+        for a, b in zip(A, T):
+            ua = Camera(intr, jaxlie.SE3.from_matrix(jnp.asarray(a, jnp.float32))).project(pts)[0]
+            ub = Camera(intr, jaxlie.SE3.from_matrix(jnp.asarray(b, jnp.float32))).project(pts)[0]
+            err.append(np.linalg.norm(np.asarray(ua - ub), axis=-1).mean())
+        return float(np.mean(err))
 
-    assert err(T_ref) < 0.3 * err(T_noisy), (err(T_ref), err(T_noisy))
+    # (camera position and rotation trade off for a small far scene; the image error is what is
+    # determined, so compare reprojections)
+    assert reproj(T_ref) < 0.3 * reproj(T_noisy), (reproj(T_ref), reproj(T_noisy))
 
 
 def test_feature_backend_record_rebuilds_extractor():

@@ -330,7 +330,8 @@ def _make_optimizer(cfg: FitConfig, extent: float, n_iters: int):
         "log_scales": optax.adam(cfg.lr_scales, eps=1e-15),
         "opacity_logits": optax.adam(cfg.lr_opacity, eps=1e-15),
         "colours": optax.adam(cfg.lr_colours, eps=1e-15),
-        "pose": optax.adam(cfg.lr_pose if cfg.refine_poses else 0.0, eps=1e-15),
+        # no momentum for poses: a view's correction only moves on the steps that sample it
+        "pose": optax.adam(cfg.lr_pose if cfg.refine_poses else 0.0, b1=0.0, b2=0.99, eps=1e-15),
     }
     labels = {k: k for k in txs}
     return optax.multi_transform(txs, labels)
