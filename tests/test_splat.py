@@ -25,7 +25,7 @@ from rsrd_jax.splat._reference import render_reference
 
 W, H = 64, 48
 # One generous config shared by most tests (one compilation per scene size).
-CFG = RenderConfig(tile_size=8, chunk_size=16, capacity=320, max_chunks=512, max_pairs=8192)
+CFG = RenderConfig(tile_size=4, chunk_size=16, capacity=160, max_chunks=1024, max_pairs=16384)
 IMAGE_KEYS = ("rgb", "features", "depth_accum", "alpha")
 N = 200  # every float32 scene is padded to N Gaussians so that `render` compiles once
 _reference = jax.jit(render_reference)
@@ -300,8 +300,8 @@ def test_overflow_is_reported_and_saturated_overflow_is_exact():
 def test_choose_config_is_exact():
     g = _scene(19)
     cams = [_camera(), _camera(jaxlie.SE3.exp(jnp.asarray([0.1, 0, 0, 0, 0.05, 0], jnp.float32)))]
-    cfg = choose_config(g, cams, chunk_size=16, headroom=1.0)
-    assert cfg.capacity <= CFG.capacity
+    cfg = choose_config(g, cams, tile_size=8, chunk_size=16, headroom=1.0)  # non-default tiles
+    assert cfg.tile_size == 8
     for cam in cams:
         out = render(g, cam, cfg)
         assert not bool(jnp.any(out.tile_truncated))

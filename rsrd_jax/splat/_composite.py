@@ -4,7 +4,7 @@ hand-written VJP.
 Each tile's depth-sorted list is split into chunks of B entries; only non-empty chunks exist, so
 the work follows the real per-tile counts (a dense `[tiles, K]` layout would pay the busiest tile's
 count everywhere). Per chunk the layout is `[chunks, pixels-per-tile, B]` with the list axis minor:
-- σ is one GEMM of 6 per-entry coefficients against the pixel basis [1, u, v, u², uv, v²] in
+- σ is a contraction of 6 per-entry coefficients with the pixel basis [1, u, v, u², uv, v²] in
   tile-centred coordinates (small numbers, little float32 cancellation), with −log(o) folded into
   the constant term so that α = min(MAX_ALPHA, e^(−σ'));
 - the cumulative sum of log(1 − α) along a chunk is a B×B triangular matmul, and the carry from
@@ -20,7 +20,7 @@ can produce for a positive-definite conic; here such a pair gets α = min(MAX_AL
 Backward (the analytic form of gsplat's replay, vectorised): with g_k = ⟨dout, feat_k⟩ and
 S_k = Σ_{j>k} w_j g_j over the tile's list, dα_k = used·(T_k g_k − S_k / (1 − α_k)), so
 dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout; the reductions over pixels are GEMMs against
-the basis. Masks (kept, used, capped) carry no gradient, as in gsplat.
+the basis (6 fused reductions). Masks (kept, used, capped) carry no gradient, as in gsplat.
 """
 
 from __future__ import annotations
@@ -83,7 +83,9 @@ def _sigma(params: jax.Array, tile_size: int) -> jax.Array:
     c0 = jnp.where(valid, 0.5 * a * m * m + b * m * n + 0.5 * c * n * n - logo, _EMPTY_SIGMA)
     coef = jnp.stack([c0, -(a * m + b * n), -(b * m + c * n), 0.5 * a, b, 0.5 * c], axis=-1)
     coef = jnp.where(valid[..., None], coef, jnp.asarray([_EMPTY_SIGMA, 0, 0, 0, 0, 0], coef.dtype))
-    return jnp.einsum("pj,ckj->cpk", pixel_basis(tile_size, params.dtype), coef)
+    # A K=6 contraction: as a fused broadcast-multiply-sum XLA beats its small-GEMM path.
+    basis = pixel_basis(tile_size, params.dtype)
+    return jnp.sum(coef[:, None, :, :] * basis[None, :, None, :], axis=-1)
 
 
 def _tri(b: int, reverse: bool, dtype) -> jax.Array:
@@ -97,16 +99,21 @@ def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc
     alpha = jnp.minimum(raw, MAX_ALPHA)
     keep = alpha >= ALPHA_THRESHOLD
     l = jnp.where(keep, jnp.log(1.0 - alpha), 0.0)
+    # Signed α of kept pairs (negative where capped). The barrier materialises (α_s, l) once so
+    # that XLA does not re-evaluate σ and the exponential inside every later consumer.
+    alpha_s = jnp.where(keep, jnp.where(raw > MAX_ALPHA, -alpha, alpha), 0.0)
+    alpha_s, l = jax.lax.optimization_barrier((alpha_s, l))
     within = l @ _tri(b, False, l.dtype)
     L = within + _chunk_carry(within[..., -1], layout, kc, reverse=False)[..., None]
-    used = keep & (L > _LOG_T_STOP)
-    w = jnp.where(used, alpha * jnp.exp(L - l), 0.0)
+    used = (alpha_s != 0) & (L > _LOG_T_STOP)
+    a = jnp.abs(alpha_s)
+    w = jnp.where(used, a * jnp.exp(L - l), 0.0)
     out_c = jnp.einsum("cpk,ckd->cpd", w, feat)
     out = jax.ops.segment_sum(out_c, layout.tile, n_tiles, indices_are_sorted=True)
     sat_c = jnp.all(L[..., -1] <= _LOG_T_STOP, axis=-1)
     saturated = jnp.where(layout.last >= 0, sat_c[jnp.maximum(layout.last, 0)], True)
     # Backward residual r = α/(1 − α) where used and not capped, −1 where capped (no σ gradient).
-    r = jnp.where(used, jnp.where(raw > MAX_ALPHA, -1.0, alpha / (1.0 - alpha)), 0.0)
+    r = jnp.where(used, jnp.where(alpha_s < 0, -1.0, a / (1.0 - a)), 0.0)
     return out, saturated, (L - l, used), (w, r)
 
 
@@ -163,9 +170,9 @@ def _composite_bwd(n_tiles, tile_size, kc, res, cts):
     within = wg @ _tri(b, True, wg.dtype)
     S = within - wg + _chunk_carry(within[..., 0], layout, kc, reverse=True)[..., None]
     # dσ = −α·dα with dα = T·g − S/(1 − α) and α·T = w.
-    dsigma = jnp.where(r >= 0, r * S - wg, 0.0)
-    Q = jnp.einsum("cpk,pj->ckj", dsigma, pixel_basis(tile_size, params.dtype))
-    q0, q1, q2, q3, q4, q5 = (Q[..., i] for i in range(6))
+    dsigma = jax.lax.optimization_barrier(jnp.where(r >= 0, r * S - wg, 0.0))
+    basis = pixel_basis(tile_size, params.dtype)
+    q0, q1, q2, q3, q4, q5 = (jnp.sum(dsigma * basis[None, :, None, j], axis=1) for j in range(6))
     m, n, a, bb, c, o = (params[..., i] for i in range(6))
     sx = m * q0 - q1
     sy = n * q0 - q2

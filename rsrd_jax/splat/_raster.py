@@ -35,8 +35,9 @@ class RenderConfig(eqx.Module):
     Use `choose_config` to size `capacity`, `max_chunks` and `max_pairs` for a scene.
     """
 
-    tile_size: int = eqx.field(static=True, default=8)
-    """Tile side in pixels. 8 is fastest on CPU (fewer wasted pairs than gsplat's 16)."""
+    tile_size: int = eqx.field(static=True, default=4)
+    """Tile side in pixels. Small tiles waste fewer pixel-Gaussian evaluations (gsplat uses 16 on
+    GPUs); on CPU 4 measured about 2× faster than 8 for forward+backward."""
     chunk_size: int = eqx.field(static=True, default=32)
     """B: list entries per chunk; a tile's list is processed in ⌈count/B⌉ chunks."""
     capacity: int = eqx.field(static=True, default=256)
@@ -349,7 +350,7 @@ def _round_up(x: float, m: int) -> int:
 def choose_config(
     gaussians: Gaussians,
     cameras: Camera | Sequence[Camera],
-    tile_size: int = 8,
+    tile_size: int = 4,
     chunk_size: int = 32,
     headroom: float = 1.25,
     exact: bool = False,
