@@ -1,0 +1,605 @@
+"""Candidate search: ranked parts (pairs) × arm assignments × all grasps, solved in vmapped batches
+on the banded LM, filtered by tracking error, joint limits and collisions along the whole
+trajectory, then an approach motion (pre-grasp → grasp) that must be collision-free too.
+
+Host-side orchestration (numpy, shapes decided here); every solve is one jitted, vmapped call
+over a fixed-size chunk of candidates (padded), so each chunk size compiles once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, sample_antipodal_grasps
+from ..hands import RankConfig, rank_parts
+from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
+from ._costs import (
+    CollisionData,
+    CostParams,
+    CostWeights,
+    PoseData,
+    problem_data,
+    strip_robot,
+    tcp_errors,
+    trajectory_problem,
+)
+from ._lm import LMResult, SolverConfig, TerminationConfig, TrustRegionConfig, solve_lm
+
+ARM_NAMES = ("right", "left")
+"""Arm index 0 = right (joints 0..6, gripper 14), 1 = left (7..13, 15)."""
+
+STAGES = ("grasp_invalid", "solver", "pose_error", "joint_limits", "collision", "approach")
+"""Rejection stages, in the order they are applied."""
+
+
+class PlanResult(eqx.Enumeration):
+    """Outcome of :func:`plan_robot`."""
+
+    success = "a feasible plan was found"
+    no_grasp = "no antipodal grasp was found on the requested parts"
+    unreachable = "no grasp candidate tracked the part trajectory within the pose tolerance"
+    joint_limits = "every candidate that tracked the trajectory violated joint limits"
+    collision = "every remaining candidate collided (self, table or object) along the trajectory"
+    approach = "no remaining candidate had a collision-free approach motion"
+
+
+class PlanConfig(eqx.Module):
+    """Options of :func:`plan_robot`."""
+
+    num_keyframes: int = 50
+    """Keyframes of the joint trajectory (fewer if the video is shorter; RSRD ≤ 50)."""
+    bimanual: bool = False
+    """Plan both arms (a ranked (left part, right part) pair) in one 16-DoF solve."""
+    parts: tuple[int, ...] | None = None
+    """Parts to use (single: tried in this order; bimanual: (left-hand part, right-hand part));
+    None = from the hand/motion ranking."""
+    max_parts: int = 2
+    """Ranked parts (or pairs) tried before giving up."""
+    arms: tuple[int, ...] = (0, 1)
+    """Arm assignments tried (0 right, 1 left); bimanual tries both assignments of a pair."""
+    weights: CostWeights = CostWeights()
+    """Cost weights."""
+    max_iterations: int = 50
+    """LM iterations per solve."""
+    lambda_initial: float = 0.1
+    """Initial LM damping (RSRD 0.1)."""
+    chunk_size: int = 480
+    """Candidates per vmapped solve (chunks are padded to this size)."""
+    position_tolerance: float = 0.01
+    """Maximum TCP position error at every keyframe (m)."""
+    rotation_tolerance_deg: float = 10.0
+    """Maximum TCP rotation error at every keyframe (degrees)."""
+    limit_tolerance: float = 1e-3
+    """Allowed joint-limit violation (rad or m)."""
+    collision_margin: float = 0.0
+    """A distance below this (m) is a collision (self, table, object)."""
+    object_pad: float = 0.0
+    """Padding of the object boxes built from part points (m)."""
+    approach_distance: float = 0.06
+    """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
+    approach_steps: int = 6
+    """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
+    approach_candidates: int = 8
+    """Best trajectory candidates (by cost) whose approach is solved."""
+    top_k_per_arm: int = 4
+    """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves)."""
+    grasp_config: GraspConfig = GraspConfig()
+    """Antipodal grasp sampling when grasps are not given."""
+    mesh_config: MeshConfig = MeshConfig()
+    """Part meshing when grasps are not given."""
+    rank_config: RankConfig = RankConfig()
+    """Part ranking."""
+    seed: int = 0
+    """Seed for grasp sampling."""
+
+
+class RobotPlan(eqx.Module):
+    """A plan (host numpy arrays). Arm index 0 = right, 1 = left; unused arms have part -1."""
+
+    result: PlanResult
+    """Why the search stopped; arrays are empty/NaN unless ``success``."""
+    message: str = eqx.field(static=True)
+    """Human-readable reason."""
+    keyframe_indices: np.ndarray
+    """(K,) video frame index of each keyframe."""
+    q_keyframes: np.ndarray
+    """(K, 16) joints at keyframes (rad, gripper m)."""
+    q_video: np.ndarray
+    """(T, 16) joints linearly resampled to every video frame."""
+    q_approach: np.ndarray
+    """(A, 16) approach segment, pre-grasp to grasp (its last row ≈ ``q_keyframes[0]``)."""
+    tcp_target: np.ndarray
+    """(K, 2, 7) TCP targets at keyframes (robot frame, wxyz_xyz; home TCP for idle arms)."""
+    tcp_approach_target: np.ndarray
+    """(A, 2, 7) TCP targets of the approach segment."""
+    active: np.ndarray
+    """(2,) bool, arm in use."""
+    part: np.ndarray
+    """(2,) int, grasped part per arm (-1 none)."""
+    grasp_index: np.ndarray
+    """(2,) int, index of the chosen grasp among the part's candidates (-1 none)."""
+    T_part_grasp: np.ndarray
+    """(2, 7) chosen grasp in its part frame (rest-centroid frame)."""
+    grasp_width: np.ndarray
+    """(2,) contact separation of the chosen grasp (m)."""
+    T_robot_obj: np.ndarray
+    """(7,) object pose in the robot base frame."""
+    position_error: np.ndarray
+    """(2,) max TCP position error over keyframes (m)."""
+    rotation_error: np.ndarray
+    """(2,) max TCP rotation error over keyframes (rad)."""
+    min_distance: np.ndarray
+    """(3,) smallest self, table, object distance along trajectory and approach (m)."""
+    info: dict = eqx.field(static=True)
+    """JSON-able: solver results, rejection counts per stage and attempt, timings."""
+
+    @property
+    def success(self) -> bool:
+        return self.result == PlanResult.success
+
+
+def keyframe_indices(num_frames: int, num_keyframes: int) -> np.ndarray:
+    """Evenly spaced frame indices including the first and last frame; at least 2 keyframes
+    (a one-frame video repeats its frame), at most ``num_frames`` distinct ones."""
+    if num_frames < 1:
+        raise ValueError(f"num_frames must be ≥ 1, got {num_frames}")
+    if num_keyframes < 2:
+        raise ValueError(f"num_keyframes must be ≥ 2, got {num_keyframes}")
+    if num_frames == 1:
+        return np.zeros(2, np.int64)
+    k = min(num_keyframes, num_frames)
+    return np.unique(np.round(np.linspace(0, num_frames - 1, k)).astype(np.int64))
+
+
+def resample_keyframes(q_key: np.ndarray, idx: np.ndarray, num_frames: int) -> np.ndarray:
+    """Linear interpolation of keyframe joints (K, 16) at every frame 0..num_frames-1."""
+    t = np.arange(num_frames)
+    return np.stack([np.interp(t, idx, q_key[:, j]) for j in range(q_key.shape[1])], axis=1)
+
+
+def _se3(x) -> jaxlie.SE3:
+    return jaxlie.SE3(jnp.asarray(x, jnp.float32))
+
+
+# ----------------------------------------------------------------------------------------------
+# Batched solve + evaluation
+# ----------------------------------------------------------------------------------------------
+
+
+@eqx.filter_jit
+def _solve_batch(params: CostParams, x0, pose: PoseData, config: SolverConfig):
+    K = x0.shape[1]
+    prob = trajectory_problem(False, False)
+
+    def one(x, d):
+        return solve_lm(prob, x, problem_data(d, K), params, config)
+
+    return jax.vmap(one)(x0, pose)
+
+
+@eqx.filter_jit
+def _solve_batch_acc(params: CostParams, x0, pose: PoseData, config: SolverConfig):
+    K = x0.shape[1]
+    prob = trajectory_problem(True, False)
+    return jax.vmap(lambda x, d: solve_lm(prob, x, problem_data(d, K, True), params, config))(x0, pose)
+
+
+def _solve(params: CostParams, x0, pose: PoseData, config: SolverConfig, acceleration: bool):
+    fn = _solve_batch_acc if acceleration else _solve_batch
+    return fn(params, x0, pose, config)
+
+
+@eqx.filter_jit
+def _evaluate(robot, obj, q, target, active, T_world_part, hand_part_mask, margin):
+    """Per candidate: max pos/rot error of active arms, max limit violation, min distances."""
+    pos, rot = tcp_errors(robot, q, target)  # (n, K, 2)
+    pos = jnp.max(jnp.where(active > 0, pos, 0.0), axis=1)
+    rot = jnp.max(jnp.where(active > 0, rot, 0.0), axis=1)
+    viol = jnp.max(jnp.maximum(q - robot.upper, robot.lower - q), axis=(1, 2))
+    res = collision_distances(robot, q, obj, T_world_part[None], margin=0.0, check_finite=False)
+    d_obj = jnp.where(hand_part_mask, res.object_distance, jnp.inf)
+    min_obj = jnp.min(d_obj, axis=(-2, -1))
+    mins = jnp.stack([jnp.min(res.min_self, axis=1), jnp.min(res.min_table, axis=1), jnp.min(min_obj, axis=1)], -1)
+    return pos, rot, viol, mins
+
+
+class _Batch(eqx.Module):
+    q: np.ndarray  # (n, K, 16)
+    cost: np.ndarray
+    lm_result: np.ndarray  # LMResult index
+    iterations: np.ndarray
+    pos: np.ndarray  # (n, 2)
+    rot: np.ndarray
+    viol: np.ndarray
+    mins: np.ndarray  # (n, 3)
+
+
+def _run_candidates(
+    params: CostParams, robot_eval, obj, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
+    T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool,
+) -> _Batch:
+    """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded)."""
+    n = x0.shape[0]
+    chunk = max(1, min(cfg.chunk_size, n))
+    solver = SolverConfig(
+        trust_region=TrustRegionConfig(lambda_initial=cfg.lambda_initial),
+        termination=TerminationConfig(max_iterations=cfg.max_iterations),
+    )
+    outs = []
+    for s in range(0, n, chunk):
+        sl = slice(s, min(s + chunk, n))
+        m = sl.stop - sl.start
+        pad = lambda a: np.concatenate([a[sl], np.repeat(a[sl][-1:], chunk - m, 0)]) if m < chunk else a[sl]  # noqa: E731
+        xs, ts, acts = pad(x0), pad(target), pad(active)
+        K = xs.shape[1]
+        acts_k = np.repeat(np.asarray(acts, np.float32)[:, None], K, 1)  # (chunk, K, 2)
+        pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k))
+        sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
+        ev = _evaluate(robot_eval, obj, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
+                       jnp.asarray(mask), 0.0)
+        outs.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
+    cat = [np.concatenate(x) for x in zip(*outs)]
+    return _Batch(*cat)
+
+
+def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig) -> tuple[np.ndarray, dict]:
+    """Apply the stages in order; returns the surviving mask and counts rejected per stage."""
+    counts = {}
+    alive = valid.copy()
+    counts["grasp_invalid"] = int((~valid).sum())
+    ok = np.isfinite(b.cost) & np.all(np.isfinite(b.q), axis=(1, 2))
+    counts["solver"] = int((alive & ~ok).sum())
+    alive &= ok
+    ok = (np.max(b.pos, 1) <= cfg.position_tolerance) & (np.max(b.rot, 1) <= np.deg2rad(cfg.rotation_tolerance_deg))
+    counts["pose_error"] = int((alive & ~ok).sum())
+    alive &= ok
+    ok = b.viol <= cfg.limit_tolerance
+    counts["joint_limits"] = int((alive & ~ok).sum())
+    alive &= ok
+    ok = np.all(b.mins >= cfg.collision_margin, axis=1)
+    counts["collision"] = int((alive & ~ok).sum())
+    alive &= ok
+    return alive, counts
+
+
+# ----------------------------------------------------------------------------------------------
+# Main entry
+# ----------------------------------------------------------------------------------------------
+
+
+def grasp_targets(
+    T_robot_obj: Float[np.ndarray, "7"], T_obj_part: Float[np.ndarray, "k 7"], T_part_grasp: Float[np.ndarray, "n 7"]
+) -> np.ndarray:
+    """TCP targets ``T_robot_obj · T_obj_part(t) · T_part_grasp`` for n grasps at k keyframes:
+    (n, k, 7) wxyz_xyz."""
+    T_robot_part = _se3(T_robot_obj) @ _se3(T_obj_part)  # (k,)
+    out = jaxlie.SE3(T_robot_part.wxyz_xyz[None]) @ jaxlie.SE3(_se3(T_part_grasp).wxyz_xyz[:, None])
+    return np.asarray(out.wxyz_xyz)
+
+
+def _object_geometry(part_points: Sequence[np.ndarray], pad: float) -> ObjectGeometry:
+    pts = np.concatenate([np.asarray(p, float) for p in part_points])
+    ids = np.concatenate([np.full(len(p), k) for k, p in enumerate(part_points)])
+    return object_boxes_from_points(pts, ids, len(part_points), pad=pad)
+
+
+def _hand_part_mask(robot: YumiModel, obj: ObjectGeometry, grasped: Sequence[int]) -> np.ndarray:
+    """(caps, prims): False for hand capsules vs primitives of grasped parts."""
+    hand = np.asarray(robot.geom.hand_mask)
+    prim_part = np.concatenate([np.asarray(obj.box_part), np.asarray(obj.cap_part)])
+    g = np.isin(prim_part, list(grasped))
+    return ~(hand[:, None] & g[None, :])
+
+
+def _failure(result: PlanResult, message: str, T_robot_obj, idx, info) -> RobotPlan:
+    nan = lambda *s: np.full(s, np.nan)  # noqa: E731
+    return RobotPlan(
+        result=result, message=message, keyframe_indices=idx, q_keyframes=nan(0, 16), q_video=nan(0, 16),
+        q_approach=nan(0, 16), tcp_target=nan(0, 2, 7), tcp_approach_target=nan(0, 2, 7),
+        active=np.zeros(2, bool), part=np.full(2, -1), grasp_index=np.full(2, -1), T_part_grasp=nan(2, 7),
+        grasp_width=nan(2), T_robot_obj=np.asarray(T_robot_obj, float), position_error=nan(2),
+        rotation_error=nan(2), min_distance=nan(3), info=info,
+    )
+
+
+def plan_robot(
+    robot: YumiModel,
+    part_points: Sequence[Float[np.ndarray, "_n 3"]],
+    T_obj_part: Float[np.ndarray, "t p 7"],
+    T_robot_obj: Float[np.ndarray, "7"],
+    hands: Float[np.ndarray, "t h 2 3"] | None = None,
+    grasps: dict[int, PartGrasps] | None = None,
+    config: PlanConfig = PlanConfig(),
+) -> RobotPlan:
+    """Plan a YuMi joint trajectory that makes grasped parts follow a part trajectory.
+
+    Frames: part k's frame is its rest-centroid frame (object-frame axes, origin at the rest
+    centroid): ``part_points[k]`` are its points there and ``T_obj_part[t, k]`` maps it into the
+    object frame. The TCP target of grasp g on part k is
+    ``T_robot_obj · T_obj_part(t) · T_part_grasp[g]``.
+
+    Search: for each ranked part (or (left, right) pair) and arm assignment, all grasps of the
+    part are solved (single-arm problems, the other arm held near home) in vmapped chunks and
+    rejected in order by tracking error (``position_tolerance``/``rotation_tolerance_deg`` at every
+    keyframe), joint limits and collisions along the trajectory (self, table, object boxes moved
+    by the trajectory; the hand may touch its grasped part). Bimanual: the best ``top_k_per_arm``
+    survivors of each arm are combined into 16-DoF solves initialised from them and checked again
+    (including arm-arm collisions). The best survivors by cost then get an approach segment
+    (pre-grasp ``approach_distance`` behind the first grasp pose along the gripper z axis, to the
+    grasp) that must track and be collision-free. The first part (pair) with a feasible plan wins;
+    within it, the lowest cost.
+
+    Args:
+        robot: from :func:`rsrd_jax.robot.load_yumi`.
+        part_points: P point sets in their part frames (m).
+        T_obj_part: (T, P, 7) part poses in the object frame per video frame.
+        T_robot_obj: (7,) object pose in the robot base frame (wxyz_xyz).
+        hands: optional (T, H, 2, 3) fingertip keypoints in the object frame for part ranking.
+        grasps: optional precomputed grasps per part index (else sampled on the part points).
+        config: options.
+
+    Returns:
+        :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why.
+
+    Raises:
+        ValueError: on inconsistent input shapes or a bad part index.
+    """
+    import time
+
+    t_start = time.perf_counter()
+    P = len(part_points)
+    T_obj_part = np.asarray(T_obj_part, float)
+    T_robot_obj = np.asarray(T_robot_obj, float).reshape(-1)
+    if T_obj_part.ndim != 3 or T_obj_part.shape[1:] != (P, 7):
+        raise ValueError(f"T_obj_part: expected shape (T, {P}, 7), got {T_obj_part.shape}")
+    if T_robot_obj.shape != (7,) or not np.all(np.isfinite(T_robot_obj)):
+        raise ValueError(f"T_robot_obj: expected 7 finite numbers (wxyz_xyz), got {T_robot_obj}")
+    if config.parts is not None and any(not 0 <= k < P for k in config.parts):
+        raise ValueError(f"config.parts {config.parts} out of range for {P} parts")
+    if config.bimanual and P < 2 and config.parts is None:
+        raise ValueError("bimanual planning needs at least 2 parts")
+    nT = T_obj_part.shape[0]
+    idx = keyframe_indices(nT, config.num_keyframes)
+    K = len(idx)
+    T_robot_part = np.asarray((_se3(T_robot_obj) @ _se3(T_obj_part[idx])).wxyz_xyz)  # (K, P, 7)
+    obj = _object_geometry(part_points, config.object_pad)
+    robot_lite = strip_robot(robot)
+    params = CostParams(robot_lite, config.weights, None)
+    acceleration = float(config.weights.acceleration) > 0
+    home = np.asarray(HOME_Q, np.float32)
+    home_tcp = np.asarray(tcp_poses(robot_lite, jnp.asarray(home)))  # (2, 7)
+    info: dict = {"num_frames": nT, "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES}}
+
+    # Ranking
+    if config.parts is not None:
+        if config.bimanual:
+            if len(config.parts) != 2 or config.parts[0] == config.parts[1]:
+                raise ValueError(f"bimanual config.parts must be two distinct parts, got {config.parts}")
+            order = [tuple(config.parts)]
+        else:
+            order = [(k,) for k in config.parts]
+        info["ranking"] = "given"
+    else:
+        rk = rank_parts(list(part_points), T_obj_part, hands, config=config.rank_config)
+        info["ranking"] = rk.method
+        if config.bimanual:
+            order = [tuple(int(v) for v in p) for p in np.asarray(rk.pair_order)]
+        else:
+            order = [(int(k),) for k in np.asarray(rk.part_order)]
+    order = order[: config.max_parts]
+
+    # Grasps (lazily per part)
+    grasp_cache: dict[int, PartGrasps] = dict(grasps or {})
+    key = jax.random.PRNGKey(config.seed)
+
+    def get_grasps(k: int) -> PartGrasps:
+        if k not in grasp_cache:
+            mesh = build_part_mesh(np.asarray(part_points[k]), config.mesh_config)
+            grasp_cache[k] = sample_antipodal_grasps(mesh, jax.random.fold_in(key, k), config.grasp_config)
+        return grasp_cache[k]
+
+    def single_arm(k: int, arm: int) -> tuple[_Batch, np.ndarray, dict, np.ndarray]:
+        g = get_grasps(k)
+        Tg = np.asarray(g.T_part_grasp, float)
+        n = Tg.shape[0]
+        target = np.repeat(np.repeat(home_tcp[None, None], n, 0), K, 1)  # (n, K, 2, 7)
+        target[:, :, arm] = grasp_targets(T_robot_obj, T_obj_part[idx, k], Tg)
+        active = np.zeros((n, 2), np.float32)
+        active[:, arm] = 1
+        x0 = np.repeat(np.repeat(home[None, None], n, 0), K, 1)
+        mask = _hand_part_mask(robot, obj, [k])
+        b = _run_candidates(params, robot_lite, obj, x0, target, active, T_robot_part, mask, config, acceleration)
+        valid = np.asarray(g.valid, bool)
+        alive, counts = _reject(b, valid, config)
+        return b, alive, counts, target
+
+    best = None
+    last_stage = None
+    any_grasp = False
+    for parts in order:
+        assignments = []
+        if config.bimanual:
+            left, right = parts
+            assignments = [((0, right), (1, left)), ((0, left), (1, right))]
+        else:
+            assignments = [((arm, parts[0]),) for arm in config.arms]
+        for assign in assignments:
+            att = {"parts": {ARM_NAMES[a]: int(k) for a, k in assign}, "rejections": {}}
+            info["attempts"].append(att)
+            per_arm = []
+            for a, k in assign:
+                g = get_grasps(k)
+                if not bool(np.any(np.asarray(g.valid))):
+                    per_arm = None
+                    att["rejections"][ARM_NAMES[a]] = {"grasp_invalid": int(np.asarray(g.valid).size)}
+                    info["rejections"]["grasp_invalid"] += int(np.asarray(g.valid).size)
+                    break
+                any_grasp = True
+                b, alive, counts, target = single_arm(k, a)
+                att["rejections"][ARM_NAMES[a]] = counts
+                for s, c in counts.items():
+                    info["rejections"][s] += c
+                per_arm.append((a, k, b, alive, target, g))
+            if per_arm is None:
+                continue
+            stage = _first_empty_stage(per_arm, att)
+            if stage is not None:
+                last_stage = stage
+                continue
+            cand = _combine(per_arm, params, robot_lite, obj, T_robot_part, config, acceleration, home_tcp, att, info)
+            if cand is None:
+                last_stage = att.get("failed_stage", "collision")
+                continue
+            # approach
+            plan = _approach(cand, params, robot_lite, robot, obj, T_robot_part, config, acceleration, att, info)
+            if plan is None:
+                last_stage = "approach"
+                continue
+            if best is None or plan["cost"] < best["cost"]:
+                best = plan
+        if best is not None:
+            break
+
+    info["time_s"] = round(time.perf_counter() - t_start, 3)
+    if best is None:
+        if not any_grasp:
+            return _failure(PlanResult.no_grasp, "no antipodal grasp on the requested parts", T_robot_obj, idx, info)
+        res, msg = {
+            "joint_limits": (PlanResult.joint_limits, "all tracking candidates violate joint limits"),
+            "collision": (PlanResult.collision, "all remaining candidates collide along the trajectory"),
+            "approach": (PlanResult.approach, "no remaining candidate has a collision-free approach"),
+        }.get(last_stage, (PlanResult.unreachable,
+                           "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
+        return _failure(res, msg, T_robot_obj, idx, info)
+    info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
+    q_key = best["q"]
+    return RobotPlan(
+        result=PlanResult.success, message="feasible plan found", keyframe_indices=idx, q_keyframes=q_key,
+        q_video=resample_keyframes(q_key, idx, nT), q_approach=best["q_approach"], tcp_target=best["target"],
+        tcp_approach_target=best["approach_target"], active=best["active"], part=best["part"],
+        grasp_index=best["grasp_index_arr"], T_part_grasp=best["T_part_grasp"], grasp_width=best["width"],
+        T_robot_obj=T_robot_obj, position_error=best["pos"], rotation_error=best["rot"],
+        min_distance=best["mins"], info=info,
+    )
+
+
+def _exhausting_stage(counts: dict) -> str:
+    """The stage that removed the last candidates (counts from :func:`_reject`)."""
+    last = "pose_error"
+    for s in STAGES[1:]:
+        if counts.get(s, 0) > 0:
+            last = s
+    return last
+
+
+def _first_empty_stage(per_arm, att) -> str | None:
+    for a, k, b, alive, target, g in per_arm:
+        if not alive.any():
+            return _exhausting_stage(att["rejections"][ARM_NAMES[a]])
+    return None
+
+
+def _combine(per_arm, params, robot_lite, obj, T_robot_part, cfg: PlanConfig, acceleration, home_tcp, att, info):
+    """Single arm: survivors ordered by cost. Bimanual: top-k × top-k joint solves."""
+    if len(per_arm) == 1:
+        a, k, b, alive, target, g = per_arm[0]
+        ids = np.nonzero(alive)[0]
+        ids = ids[np.argsort(b.cost[ids])]
+        active = np.zeros(2, bool)
+        active[a] = True
+        return [dict(q=b.q[i], cost=float(b.cost[i]), lm_result=int(b.lm_result[i]), iterations=int(b.iterations[i]),
+                     target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i])
+                for i in ids]
+    (a0, k0, b0, al0, t0, g0), (a1, k1, b1, al1, t1, g1) = per_arm
+    i0 = np.nonzero(al0)[0]
+    i0 = i0[np.argsort(b0.cost[i0])][: cfg.top_k_per_arm]
+    i1 = np.nonzero(al1)[0]
+    i1 = i1[np.argsort(b1.cost[i1])][: cfg.top_k_per_arm]
+    pairs = [(i, j) for i in i0 for j in i1]
+    n = len(pairs)
+    K = b0.q.shape[1]
+    x0 = np.zeros((n, K, 16), np.float32)
+    target = np.zeros((n, K, 2, 7), np.float32)
+    arm_sl = {0: slice(0, 7), 1: slice(7, 14)}
+    for m, (i, j) in enumerate(pairs):
+        x0[m] = b0.q[i]
+        x0[m][:, arm_sl[a1]] = b1.q[j][:, arm_sl[a1]]
+        target[m][:, a0] = t0[i][:, a0]
+        target[m][:, a1] = t1[j][:, a1]
+    active = np.ones((n, 2), np.float32)
+    mask = _hand_part_mask(robot_lite, obj, [k0, k1])
+    b = _run_candidates(params, robot_lite, obj, x0, target, active, T_robot_part, mask, cfg, acceleration)
+    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    att["rejections"]["bimanual"] = counts
+    for s, c in counts.items():
+        if s != "grasp_invalid":
+            info["rejections"][s] += c
+    if not alive.any():
+        att["failed_stage"] = _exhausting_stage(counts)
+        return None
+    ids = np.nonzero(alive)[0]
+    ids = ids[np.argsort(b.cost[ids])]
+    return [dict(q=b.q[m], cost=float(b.cost[m]), lm_result=int(b.lm_result[m]), iterations=int(b.iterations[m]),
+                 target=target[m], active=np.ones(2, bool),
+                 arms=[(a0, k0, pairs[m][0], g0), (a1, k1, pairs[m][1], g1)], pos=b.pos[m], rot=b.rot[m],
+                 mins=b.mins[m]) for m in ids]
+
+
+def _approach(cands, params, robot_lite, robot, obj, T_robot_part, cfg: PlanConfig, acceleration, att, info):
+    """Approach segments for the best candidates (batched); the first that passes wins."""
+    cands = cands[: cfg.approach_candidates]
+    A = max(2, cfg.approach_steps)
+    n = len(cands)
+    s = np.linspace(0.0, 1.0, A)
+    target = np.zeros((n, A, 2, 7), np.float32)
+    x0 = np.zeros((n, A, 16), np.float32)
+    active = np.zeros((n, 2), np.float32)
+    grasped = set()
+    for m, c in enumerate(cands):
+        x0[m] = c["q"][0][None]
+        target[m] = c["target"][0][None]
+        for a, k, i, g in c["arms"]:
+            grasped.add(k)
+            active[m, a] = 1
+            T0 = _se3(c["target"][0, a])
+            offs = jnp.stack([jnp.zeros(A), jnp.zeros(A), -cfg.approach_distance * (1.0 - jnp.asarray(s))], -1)
+            path = jaxlie.SE3(T0.wxyz_xyz[None]) @ jaxlie.SE3.from_translation(offs)
+            target[m, :, a] = np.asarray(path.wxyz_xyz)
+    T_part0 = np.repeat(T_robot_part[:1], A, 0)
+    mask = _hand_part_mask(robot, obj, sorted(grasped))
+    b = _run_candidates(params, robot_lite, obj, x0, target, active, T_part0, mask, cfg, acceleration)
+    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    # Also require that the approach ends where the trajectory starts.
+    end_gap = np.array([np.max(np.abs(b.q[m, -1] - cands[m]["q"][0])) for m in range(n)])
+    alive &= end_gap < 0.2
+    att["rejections"]["approach_checked"] = n
+    att["rejections"]["approach"] = int(n - alive.sum())
+    info["rejections"]["approach"] += int(n - alive.sum())
+    if not alive.any():
+        return None
+    m = int(np.nonzero(alive)[0][0])
+    c = cands[m]
+    part = np.full(2, -1)
+    gidx = np.full(2, -1)
+    Tpg = np.full((2, 7), np.nan)
+    width = np.full(2, np.nan)
+    for a, k, i, g in c["arms"]:
+        part[a], gidx[a] = k, i
+        Tpg[a] = np.asarray(g.T_part_grasp[i])
+        width[a] = float(g.width[i])
+    mins = np.minimum(c["mins"], b.mins[m])
+    return dict(
+        q=np.asarray(c["q"], float), cost=c["cost"], lm_result=LMResult._index_to_message[c["lm_result"]],
+        iterations=c["iterations"],
+        target=np.asarray(c["target"], float), active=c["active"], part=part, grasp_index_arr=gidx,
+        grasp_index=[int(v) for v in gidx], parts=[int(v) for v in part], T_part_grasp=Tpg, width=width,
+        pos=np.asarray(c["pos"], float), rot=np.asarray(c["rot"], float), mins=np.asarray(mins, float),
+        q_approach=np.asarray(b.q[m], float), approach_target=np.asarray(target[m], float),
+    )
