@@ -259,6 +259,27 @@ def _group_jacobian(problem: BandedProblem, cost: Cost, x: Array, d: Any, params
     return jax.vmap(term)(xw, d)
 
 
+# Padding instead of `.at[].add`: scatters are slow on CPU, worst under vmap (batched scatter).
+def _place_rows(blocks: Array, start: int, T: int) -> Array:
+    """Rows ``start..start+n-1`` of a (T, ...) zero array set to ``blocks`` (n, ...)."""
+    pad = [(start, T - start - blocks.shape[0])] + [(0, 0)] * (blocks.ndim - 1)
+    return jnp.pad(blocks, pad)
+
+
+def _place_band(blocks: Array, start: int, k: int, T: int, B: int) -> Array:
+    """A (T, B+1, D, D) zero array with band ``k`` of rows ``start..`` set to ``blocks`` (n, D, D)."""
+    rows = _place_rows(blocks, start, T)[:, None]
+    return jnp.pad(rows, [(0, 0), (k, B - k), (0, 0), (0, 0)])
+
+
+def _add_to_diagonal(bands: Array, diag: Array) -> Array:
+    """bands with ``diag`` (T, D) added to the diagonals of the main-diagonal blocks."""
+    D = bands.shape[-1]
+    eye = jnp.eye(D, dtype=bands.dtype)
+    main = bands[:, :1] + (diag[:, :, None] * eye)[:, None]
+    return jnp.concatenate([main, bands[:, 1:]], axis=1)
+
+
 def _linearise(problem: BandedProblem, x: Array, data: tuple, params: Any) -> _Linearisation:
     T, P = x.shape
     D = problem._tangent_dim(P)
@@ -276,9 +297,9 @@ def _linearise(problem: BandedProblem, x: Array, data: tuple, params: Any) -> _L
         gw = jnp.einsum("nri,nr->ni", Jf, r).reshape(n, b + 1, D)
         # Term t covers keyframes t-b..t; its window slot i is keyframe t-b+i, i.e. rows i..i+n-1.
         for i in range(b + 1):
-            grad = grad.at[i : i + n].add(gw[:, i])
+            grad = grad + _place_rows(gw[:, i], i, T)
             for j in range(i + 1):
-                bands = bands.at[i : i + n, i - j].add(H[:, i, :, j, :])
+                bands = bands + _place_band(H[:, i, :, j, :], i, i - j, T, B)
         cost = cost + jnp.sum(r**2)
         finite = finite & jnp.all(jnp.isfinite(J)) & jnp.all(jnp.isfinite(r))
     finite = finite & jnp.isfinite(cost)
@@ -302,10 +323,9 @@ def _hessian_bands(problem: BandedProblem, x: Array, data: tuple, params: Any) -
 
         zero = jnp.zeros((b + 1, D), x.dtype)
         H = jax.vmap(lambda xw_t, d_t: jax.hessian(half_sq)(zero, xw_t, d_t))(xw, d)  # (n, b+1, D, b+1, D)
-        n = H.shape[0]
         for i in range(b + 1):
             for j in range(i + 1):
-                bands = bands.at[i : i + n, i - j].add(H[:, i, :, j, :])
+                bands = bands + _place_band(H[:, i, :, j, :], i, i - j, T, B)
     return bands
 
 
@@ -414,12 +434,12 @@ def _lm_pass(problem: BandedProblem, data, params, config: SolverConfig, s: _Sta
         ),
     )
     done = nonfinite | converged | stalled | out_of_steps
-    history = s.history.at[iteration].set(lin.cost)
+    history = jnp.where(jnp.arange(s.history.shape[0]) == iteration, lin.cost, s.history)
 
     # Next trial: (J^T J + lambda S) delta = -J^T r. Its predicted decrease of sum r^2 is
     # -(2 g.delta + delta^T J^T J delta) = -g.delta + lambda delta^T S delta.
     S = _damping_diag(config, lin.bands)
-    damped = lin.bands.at[:, 0].add(jax.vmap(jnp.diag)(lambd * S))
+    damped = _add_to_diagonal(lin.bands, lambd * S)
     delta = banded_solve(damped, -lin.grad)
     predicted = -jnp.sum(lin.grad * delta) + lambd * jnp.sum(S * delta**2)
     x_trial = problem._retract(x, delta)
