@@ -327,6 +327,7 @@ def test_vmap_over_cameras_and_no_retrace():
     assert _raster._trace_count == before
 
 
+@pytest.mark.slow
 def test_vmap_over_part_poses_gradient():
     g = _scene(29, parts=2)
     rng = np.random.default_rng(29)

@@ -1,13 +1,16 @@
-"""Tile binning with static capacities, the `render` entry point and the host-side capacity chooser.
+"""Tile binning with static budgets, the `render` entry point and the host-side budget chooser.
 
-Binning (no gradient): each visible Gaussian covers a box of tiles; Gaussians are ordered by
-camera depth (one int64 sort of `depth bits | index`), their (Gaussian, tile) pairs are expanded
+Binning (no gradient): each visible Gaussian covers a box of tiles (opacity-aware extent); pairs
+whose tile the α ≥ 1/255 ellipse misses are culled exactly. Gaussians are ordered by camera
+depth (one int64 sort of `depth bits << 32 | index`), their (Gaussian, tile) pairs are expanded
 into a static budget of `max_pairs` slots in that order, and one integer sort by `tile·M + slot`
-groups them per tile, near to far. Each tile keeps its first `capacity` entries (the nearest K).
-Entries that do not fit are counted per tile (`tile_overflow`); a tile whose dropped entries could
-have changed a pixel (some pixel had not reached the transmittance stop) is flagged in
-`tile_truncated`. Pairs beyond `max_pairs` (the farthest ones) are counted in `pairs_overflow`.
-Nothing is dropped silently.
+groups them per tile, near to far. Each tile keeps its nearest `capacity` entries, cut into
+chunks of `chunk_size`; chunks of all tiles share a static budget of `max_chunks`, so the work
+follows the real per-tile counts. Nothing is dropped silently: entries beyond `capacity` are
+counted per tile (`tile_overflow`); a tile whose dropped entries could have changed a pixel
+(some pixel had not reached the transmittance stop) or that lost chunks to the chunk budget is
+flagged in `tile_truncated`; excess pairs and chunks are counted in `pairs_overflow` and
+`chunks_overflow`.
 """
 
 from __future__ import annotations
