@@ -58,8 +58,8 @@ class BuildConfig(eqx.Module):
     group_scale: float = 1.0
     """Automatic grouping granularity when there are no part masks (larger: fewer parts)."""
     arap_radius: float | None = None
-    """Cross-part pair radius in metres; None: max(2.5 mm × object radius / 0.1 m, 1.5 × the median
-    nearest-neighbour spacing of the Gaussians)."""
+    """Cross-part pair radius in metres; None: max(2.5 mm, 2.5 × the median nearest-neighbour
+    spacing of the Gaussians). Studio objects are 10–15 cm, like the paper's, so 2.5 mm is kept."""
     crop_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     """World box isolating the object when the capture has no masks."""
     use_masks: bool = True
@@ -205,7 +205,7 @@ def build_object_model(
         from scipy.spatial import cKDTree
 
         d, _ = cKDTree(means).query(means, k=2)
-        arap_r = max(0.0025 * radius_obj / 0.1, 1.5 * float(np.median(d[:, 1])))
+        arap_r = max(0.0025, 2.5 * float(np.median(d[:, 1])))
     else:
         arap_r = float(config.arap_radius)
     pairs = arap_pairs(means, labels, arap_r)

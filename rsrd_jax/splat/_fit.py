@@ -38,11 +38,11 @@ from ._raster import RenderConfig, bin_gaussians, render
 class FitConfig(eqx.Module):
     """Options of `fit_gaussians` (3DGS defaults scaled to a 2-core CPU)."""
 
-    iterations: int = 1500
+    iterations: int = 1000
     """Optimisation steps (one view each)."""
     block: int = 100
     """Iterations per jitted block; densification and pruning happen between blocks."""
-    max_gaussians: int = 16384
+    max_gaussians: int = 12288
     """Capacity of the padded arrays (upper bound on the Gaussian count)."""
     ssim_weight: float = 0.2
     """λ of the D-SSIM term: loss = (1 − λ)·L1 + λ·(1 − SSIM)."""
