@@ -45,3 +45,9 @@ from ._trajectory import (
     load_trajectory as load_trajectory,
     save_trajectory as save_trajectory,
 )
+from ._plan import (
+    PLAN_FORMAT as PLAN_FORMAT,
+    PlanArtefact as PlanArtefact,
+    load_plan as load_plan,
+    save_plan as save_plan,
+)

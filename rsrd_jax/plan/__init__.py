@@ -32,3 +32,49 @@ __all__ = [
     "banded_to_dense",
     "solve_lm",
 ]
+
+from ._costs import (
+    CollisionData,
+    CostParams,
+    CostWeights,
+    PoseData,
+    problem_data,
+    strip_robot,
+    tcp_errors,
+    trajectory_problem,
+)
+from ._search import (
+    ARM_NAMES,
+    STAGES,
+    PlanConfig,
+    PlanResult,
+    RobotPlan,
+    grasp_targets,
+    keyframe_indices,
+    plan_robot,
+    resample_keyframes,
+)
+from ._studio import StudioPlanInputs, read_robot_object_pose, studio_plan_inputs
+
+__all__ += [
+    "ARM_NAMES",
+    "STAGES",
+    "CollisionData",
+    "CostParams",
+    "CostWeights",
+    "PlanConfig",
+    "PlanResult",
+    "PoseData",
+    "RobotPlan",
+    "StudioPlanInputs",
+    "grasp_targets",
+    "keyframe_indices",
+    "plan_robot",
+    "problem_data",
+    "read_robot_object_pose",
+    "resample_keyframes",
+    "strip_robot",
+    "studio_plan_inputs",
+    "tcp_errors",
+    "trajectory_problem",
+]

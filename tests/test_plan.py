@@ -1,0 +1,193 @@
+"""Planning: trajectory costs, candidate search, RobotPlan artefact, studio ground-truth inputs."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rsrd_jax.grasp import GraspResult, PartGrasps
+from rsrd_jax.io import ArtefactError, load_plan, save_plan
+from rsrd_jax.plan import (
+    CollisionData,
+    CostParams,
+    CostWeights,
+    PlanConfig,
+    PlanResult,
+    PoseData,
+    keyframe_indices,
+    plan_robot,
+    problem_data,
+    resample_keyframes,
+    strip_robot,
+    tcp_errors,
+    trajectory_problem,
+)
+from rsrd_jax.robot import HOME_Q, load_yumi, object_boxes_from_points, tcp_poses
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_yumi()
+
+
+def _cube(half=0.02, n=6):
+    g = np.linspace(-half, half, n)
+    pts = np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3)
+    return pts[np.max(np.abs(pts), 1) >= half - 1e-9]  # surface
+
+
+def _grasps(n_valid=8, n_pad=0) -> PartGrasps:
+    """Top-down grasps of a cube centred at the part origin, rolled about the approach axis."""
+    rolls = np.linspace(0, np.pi, n_valid, endpoint=False)
+    down = jaxlie.SO3.from_x_radians(np.pi)  # grasp z (approach) = -z of the part frame
+    T = [jaxlie.SE3.from_rotation(down @ jaxlie.SO3.from_z_radians(float(r))).wxyz_xyz for r in rolls]
+    T += [jnp.asarray([1.0, 0, 0, 0, 0, 0, 0])] * n_pad
+    n = n_valid + n_pad
+    valid = np.arange(n) < n_valid
+    return PartGrasps(
+        T_part_grasp=jnp.asarray(np.stack(T), jnp.float32), width=jnp.full((n,), 0.04),
+        score=jnp.where(valid, 1.0, -jnp.inf), valid=jnp.asarray(valid), base_index=jnp.arange(n),
+        contacts=jnp.zeros((n, 2, 3)), base_valid=jnp.asarray(valid), result=GraspResult.success,
+        num_hit=jnp.array(n), num_width_ok=jnp.array(n), num_antipodal=jnp.array(n),
+    )  # fmt: skip
+
+
+def _trajectory(T=12):
+    """One part, rest centroid at (0, 0, 0.12) in the object frame, sliding and lifting 6 cm
+    while turning 20° about z."""
+    s = np.linspace(0, 1, T)
+    out = []
+    for si in s:
+        R = jaxlie.SO3.from_z_radians(np.deg2rad(20) * si)
+        out.append(jaxlie.SE3.from_rotation_and_translation(R, jnp.asarray([0.06 * si, 0.0, 0.12 + 0.03 * si])).wxyz_xyz)
+    return np.asarray(out)[:, None]
+
+
+T_ROBOT_OBJ = np.array([1.0, 0, 0, 0, 0.42, -0.18, 0.0])
+CFG = PlanConfig(num_keyframes=4, approach_steps=4, chunk_size=8, max_iterations=40, parts=(0,), arms=(0,),
+                 approach_candidates=4)  # fmt: skip
+
+
+def test_keyframes_and_resampling():
+    assert keyframe_indices(1, 50).tolist() == [0, 0]
+    assert keyframe_indices(5, 50).tolist() == [0, 1, 2, 3, 4]
+    k = keyframe_indices(100, 5)
+    assert k[0] == 0 and k[-1] == 99 and len(k) == 5
+    q = np.stack([np.arange(5.0)] * 16, 1)
+    r = resample_keyframes(q * 0 + k[:, None].astype(float), k, 100)
+    np.testing.assert_allclose(r[:, 0], np.arange(100), atol=1e-9)
+    with pytest.raises(ValueError):
+        keyframe_indices(0, 5)
+
+
+def test_pose_residual_matches_numpy_and_gradients_match_fd(robot):
+    lite = strip_robot(robot)
+    K = 4
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(HOME_Q + 0.2 * rng.standard_normal((K, 16)), jnp.float32)
+    x = x.at[0, 3].set(robot.upper[3] + 0.05)  # one limit violated
+    tgt = np.asarray(tcp_poses(robot, x)) + 0.0
+    tgt[..., 4:] += 0.03 * rng.standard_normal(tgt[..., 4:].shape)
+    tgt[..., :4] = Rotation.from_rotvec(0.2 * rng.standard_normal((K, 2, 3))).as_quat(scalar_first=True)
+    active = np.array([[1.0, 0.0]] * K, np.float32)
+    pose = PoseData(jnp.asarray(tgt, jnp.float32), jnp.asarray(active))
+    pts = _cube()
+    obj = object_boxes_from_points(pts, np.zeros(len(pts), int), 1)
+    w = CostWeights(acceleration=0.5, collision=3.0, collision_margin=0.05)
+    params = CostParams(lite, w, obj)
+    coll = CollisionData(jnp.tile(jnp.asarray([[1.0, 0, 0, 0, 0.45, -0.2, 0.15]]), (K, 1, 1)),
+                         jnp.ones((K, robot.geom.cap_radius.shape[0], 1), bool))  # fmt: skip
+    prob = trajectory_problem(True, True)
+    data = problem_data(pose, K, True, coll)
+    res = jax.jit(lambda y: prob.residuals(y, data, params))(x)
+    # pose residual against an independent numpy/scipy evaluation
+    T = np.asarray(tcp_poses(robot, x))
+    Rt = Rotation.from_quat(tgt[..., :4].reshape(-1, 4), scalar_first=True)
+    Rc = Rotation.from_quat(T[..., :4].reshape(-1, 4), scalar_first=True)
+    rot = (Rt.inv() * Rc).as_rotvec().reshape(K, 2, 3)
+    pos = T[..., 4:] - tgt[..., 4:]
+    r = np.asarray(res[0])
+    np.testing.assert_allclose(r[:, :3], 5.0 * pos[:, 0], atol=2e-5)
+    np.testing.assert_allclose(r[:, 3:6], 1.0 * rot[:, 0], atol=2e-4)
+    np.testing.assert_allclose(r[:, 19:26], 1.0 * (np.asarray(x)[:, 7:14] - HOME_Q[7:14]), atol=1e-6)
+    assert np.all(r[:, 6:19] == 0)  # right arm holds nothing, left arm tracks nothing
+    lim = np.asarray(res[1])
+    xn, lo, hi = np.asarray(x), np.asarray(robot.lower), np.asarray(robot.upper)
+    np.testing.assert_allclose(lim, 100 * (np.maximum(xn - hi, 0) + np.maximum(lo - xn, 0)), rtol=1e-4, atol=1e-4)
+    assert lim[0, 3] == pytest.approx(100 * 0.05, rel=1e-3)
+    np.testing.assert_allclose(np.asarray(res[4]), 0.5 * (np.asarray(x)[2:] - 2 * np.asarray(x)[1:-1] + np.asarray(x)[:-2]), atol=1e-6)
+    assert np.asarray(res[5]).max() > 0  # home arm near a box at 15 cm: margin active
+    # gradient of the total cost vs central finite differences along random directions
+    f = jax.jit(lambda y: prob.cost(y, data, params))
+    g = jax.jit(jax.grad(f))(x)
+    for i in range(3):
+        v = jnp.asarray(rng.standard_normal((K, 16)), jnp.float32)
+        v = v / jnp.linalg.norm(v)
+        eps = 1e-3
+        fd = (f(x + eps * v) - f(x - eps * v)) / (2 * eps)
+        assert float(jnp.sum(g * v)) == pytest.approx(float(fd), rel=2e-2, abs=2e-2)
+
+
+def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
+    traj = _trajectory()
+    plan = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(8, 0)}, config=CFG)
+    assert plan.success, (plan.message, plan.info)
+    assert plan.part.tolist() == [0, -1] and plan.active.tolist() == [True, False]
+    # independent check: FK of the returned joints vs T_robot_obj · T_obj_part · T_part_grasp
+    g = _grasps(8, 0).T_part_grasp[plan.grasp_index[0]]
+    T_tgt = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[plan.keyframe_indices, 0], jnp.float32)) @ jaxlie.SE3(g)
+    tcp = jaxlie.SE3(tcp_poses(robot, jnp.asarray(plan.q_keyframes, jnp.float32))[:, 0])
+    err = np.linalg.norm(np.asarray(tcp.translation() - T_tgt.translation()), axis=-1)
+    assert err.max() < 0.01
+    ang = np.linalg.norm(np.asarray((T_tgt.rotation().inverse() @ tcp.rotation()).log()), axis=-1)
+    assert ang.max() < np.deg2rad(10)
+    assert plan.q_video.shape == (len(traj), 16)
+    np.testing.assert_allclose(plan.q_video[plan.keyframe_indices], plan.q_keyframes, atol=1e-9)
+    assert np.all(plan.min_distance >= 0)
+    # approach: starts 6 cm behind the first grasp along the gripper z and ends at it
+    tcp_a = np.asarray(tcp_poses(robot, jnp.asarray(plan.q_approach, jnp.float32))[:, 0, 4:])
+    assert np.linalg.norm(tcp_a[0] - tcp_a[-1]) == pytest.approx(0.06, abs=0.01)
+    assert np.linalg.norm(tcp_a[-1] - np.asarray(T_tgt.translation()[0])) < 0.01
+    assert tcp_a[0, 2] > tcp_a[-1, 2] + 0.04  # top-down grasp: pre-grasp above
+    # idle arm stays near home
+    np.testing.assert_allclose(plan.q_keyframes[:, 7:14], np.tile(HOME_Q[7:14], (len(plan.q_keyframes), 1)), atol=0.05)
+    # artefact round trip
+    save_plan(plan, tmp_path / "p")
+    back = load_plan(tmp_path / "p")
+    assert back.success and back.result == "success"
+    np.testing.assert_allclose(back.q_video, plan.q_video)
+    assert back.info["rejections"]["grasp_invalid"] == 0
+    # validation names the file and field
+    import json
+    js = tmp_path / "p" / "plan.json"
+    meta = json.loads(js.read_text())
+    meta["format"] = "nope"
+    js.write_text(json.dumps(meta))
+    with pytest.raises(ArtefactError, match="format"):
+        load_plan(tmp_path / "p")
+
+
+def test_infeasible_requests_return_reasons(robot, tmp_path):
+    traj = _trajectory()
+    far = T_ROBOT_OBJ.copy()
+    far[4] = 3.0
+    plan = plan_robot(robot, [_cube()], traj, far, grasps={0: _grasps(6, 2)}, config=CFG)
+    assert plan.result == PlanResult.unreachable and not plan.success
+    rej = plan.info["attempts"][0]["rejections"]["right"]
+    assert rej["grasp_invalid"] == 2 and rej["pose_error"] == 6
+    save_plan(plan, tmp_path / "far")
+    assert load_plan(tmp_path / "far").result == "unreachable"
+    none = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(0, 8)}, config=CFG)
+    assert none.result == PlanResult.no_grasp and "grasp" in none.message
+    with pytest.raises(ValueError, match="T_obj_part"):
+        plan_robot(robot, [_cube()], np.concatenate([traj, traj], 1), T_ROBOT_OBJ, config=CFG)
+
+
+def test_tcp_errors_zero_at_fk(robot):
+    q = jnp.asarray(HOME_Q, jnp.float32)[None]
+    pos, rot = tcp_errors(strip_robot(robot), q, tcp_poses(robot, q))
+    assert float(pos.max()) < 1e-6 and float(rot.max()) < 1e-3
