@@ -184,6 +184,68 @@ def cmd_build(a: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_object_pose(value: list[str]):
+    import numpy as np
+
+    if len(value) == 1:
+        from .plan import read_robot_object_pose
+
+        return read_robot_object_pose(value[0])
+    if len(value) != 7:
+        raise ValueError(f"--object-pose: 7 numbers (wxyz_xyz) or one gt.json path, got {value}")
+    return np.asarray([float(v) for v in value])
+
+
+def cmd_plan(a: argparse.Namespace) -> int:
+    """Plans the YuMi trajectory (parts, arms, grasps, joints) and writes the RobotPlan."""
+    import numpy as np
+
+    from .io import save_plan
+    from .plan import PlanConfig, plan_robot, studio_plan_inputs
+    from .robot import load_yumi
+
+    out = Path(a.out)
+    if (out / "plan.npz").exists() and not a.overwrite:
+        print(f"error: {out / 'plan.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    hands = None
+    if a.studio_gt:
+        inp = studio_plan_inputs(a.studio_gt)
+        part_points, T_obj_part, hands = inp.part_points, inp.T_obj_part, inp.hands
+        T_robot_obj = inp.T_robot_obj if a.object_pose is None else _parse_object_pose(a.object_pose)
+    else:
+        from .io import load_trajectory
+        from .parts import load_object_model
+
+        if a.model is None or a.traj is None or a.object_pose is None:
+            print("error: MODEL, TRAJ and --object-pose are required (or --studio-gt DIR)", file=sys.stderr)
+            return 2
+        model = load_object_model(a.model)
+        traj = load_trajectory(a.traj)
+        cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
+        part_points = [np.asarray(model.part_points(k)) - cents[k] for k in range(model.num_parts)]
+        T_obj_part = traj.T_obj_part
+        T_robot_obj = _parse_object_pose(a.object_pose)
+    if a.hands == "none":
+        hands = None
+    cfg = PlanConfig(
+        num_keyframes=a.keyframes, bimanual=a.bimanual, parts=tuple(a.parts) if a.parts else None,
+        max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
+        approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    plan = plan_robot(load_yumi(), part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg)
+    save_plan(plan, out)
+    print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
+    print(f"  rejections: {plan.info['rejections']}")
+    if plan.success:
+        arms = ", ".join(f"{n} arm -> part {int(k)} (grasp {int(g)})" for n, k, g in
+                         zip(("right", "left"), plan.part, plan.grasp_index) if k >= 0)  # fmt: skip
+        print(f"  {arms}; max TCP error {1000 * np.nanmax(plan.position_error):.1f} mm, "
+              f"{np.rad2deg(np.nanmax(plan.rotation_error)):.1f} deg")  # fmt: skip
+    return 0 if plan.success else 1
+
+
 def cmd_bench(a: argparse.Namespace) -> int:
     root = Path(__file__).resolve().parent.parent
     if not (root / "benchmarks" / "run.py").is_file():
@@ -262,6 +324,29 @@ def build_parser() -> argparse.ArgumentParser:
     bd.add_argument("--no-rerun", action="store_true", help="do not write build.rrd")
     bd.add_argument("--seed", type=int, default=0)
     bd.set_defaults(func=cmd_build)
+
+    pl = sub.add_parser("plan", help="plan the YuMi's grasps and joint trajectory for a part trajectory")
+    pl.add_argument("model", nargs="?", help="ObjectModel directory (from `rsrd-jax build`)")
+    pl.add_argument("traj", nargs="?", help="PartTrajectory directory (from `rsrd-jax track`)")
+    pl.add_argument("--object-pose", nargs="+", default=None, metavar="V",
+                    help="object pose in the robot base frame: 7 numbers wxyz_xyz, or a studio robot_view/gt.json")  # fmt: skip
+    pl.add_argument("--studio-gt", default=None, metavar="DIR",
+                    help="use a studio object's ground truth (scan/demo/robot_view) instead of MODEL and TRAJ")  # fmt: skip
+    pl.add_argument("--out", required=True, help="output directory (plan.npz + plan.json)")
+    pl.add_argument("--keyframes", type=int, default=50, help="keyframes of the joint trajectory")
+    pl.add_argument("--bimanual", action="store_true", help="plan both arms on a ranked (left, right) part pair")
+    pl.add_argument("--parts", type=int, nargs="+", default=None, help="parts to use (default: ranked)")
+    pl.add_argument("--max-parts", type=int, default=2, help="ranked parts (pairs) tried")
+    pl.add_argument("--hands", choices=("studio", "none"), default="studio",
+                    help="rank parts by the studio's hand keypoints (with --studio-gt) or by motion")  # fmt: skip
+    pl.add_argument("--chunk", type=int, default=480, help="grasp candidates per vmapped solve")
+    pl.add_argument("--max-iterations", type=int, default=50, help="LM iterations per solve")
+    pl.add_argument("--approach", type=float, default=0.06, help="pre-grasp offset along the gripper axis (m)")
+    pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
+    pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
+    pl.add_argument("--seed", type=int, default=0)
+    pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")
+    pl.set_defaults(func=cmd_plan)
 
     bn = sub.add_parser("bench", help="run the benchmark suite (source checkout): args go to benchmarks.run")
     bn.add_argument("args", nargs=argparse.REMAINDER)
