@@ -1,8 +1,9 @@
 """A tracking test model built from a studio object's ground-truth geometry (no 3DGS fit).
 
-Gaussians sit on the studio's true part surfaces; their features are the average of the PCA'd
-extractor features of the scan views that see them (depth-tested), decoded by the identity. This
-isolates tracking from model building in tests.
+Gaussians sit on the studio's true part surfaces with colours averaged from the scan views that
+see them (depth-tested); the feature field (per-Gaussian features + decoder) is fitted to the scan
+views' PCA features with the project's `fit_feature_field`. This isolates tracking from 3DGS
+fitting in tests.
 """
 
 from __future__ import annotations
@@ -17,10 +18,11 @@ from scipy.spatial import cKDTree
 
 from rsrd_jax.features import EfficientNetConfig, EfficientNetExtractor, fit_pca, mask_to_grid
 from rsrd_jax.io import read_capture
+from rsrd_jax.parts import FieldConfig, fit_feature_field
 from rsrd_jax.splat import Gaussians
 
 
-def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extractor=None, seed: int = 0):
+def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extractor=None, seed: int = 0, field_iters: int = 400):
     cap = read_capture(studio_dir / "scan")
     with np.load(studio_dir / "scan/gt/scan_gt.npz") as z:
         T_wp = np.asarray(jaxlie.SE3(jnp.asarray(z["T_world_part"], jnp.float32)).as_matrix(), np.float64)
@@ -69,13 +71,19 @@ def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extract
     g = Gaussians.create(
         means, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.0025)), np.full(n, 3.0), col, acc, pid
     )
+    if field_iters:
+        g, decoder, _ = fit_feature_field(
+            g, P, cell, cap.intrinsics, cap.T_cam_world(), FieldConfig(iterations=field_iters, feature_dim=16)
+        )
+    else:
+        decoder = eqx.nn.Identity()
     tree = cKDTree(means)
     pairs = np.array(sorted(tree.query_pairs(0.004)), np.int64).reshape(-1, 2)
     pairs = pairs[pid[pairs[:, 0]] != pid[pairs[:, 1]]]
     centroids = np.stack([means[pid == k].mean(0) for k in range(len(T_wp))])
     return types.SimpleNamespace(
         gaussians=g,
-        decoder=eqx.nn.Identity(),
+        decoder=decoder,
         pca=pca,
         part_centroids=jnp.asarray(centroids, jnp.float32),
         arap_pairs=jnp.asarray(pairs, jnp.int32),

@@ -122,6 +122,8 @@ class FrameObs(eqx.Module):
     """Monocular relative depth (larger = farther; only its order is used)."""
     bg_feature: Float[Array, " d"]
     """Feature assigned to pixels the object does not cover."""
+    bg_rgb: Float[Array, "3"]
+    """Colour assigned to pixels the object does not cover."""
 
 
 class Weights(eqx.Module):
@@ -162,9 +164,10 @@ def frame_objective(
     """Per-frame loss of part poses `T_obj_part` (P) and its terms."""
     r = render_posed(tm, T_obj_part, T_cam_obj, obs.intrinsics, obs.bg_feature, config)
     l_feat = feature_loss(r.features, obs.features, obs.weight)
-    l_rgb = jnp.sum(obs.weight[..., None] * jnp.abs(r.rgb - obs.rgb * r.alpha[..., None])) / jnp.maximum(
-        3 * jnp.sum(obs.weight), 1.0
-    )
+    # full-ROI photometric L1 with the background colour composited behind the object (comparing
+    # only inside the rendered silhouette would reward shrinking it)
+    rgb = r.rgb + (1.0 - r.alpha)[..., None] * obs.bg_rgb
+    l_rgb = jnp.sum(obs.weight[..., None] * jnp.abs(rgb - obs.rgb)) / jnp.maximum(3 * jnp.sum(obs.weight), 1.0)
     # depth ranking on random pairs inside the eroded rendered mask, hand-free
     m = jax.lax.stop_gradient(_erode((r.alpha > w.alpha_mask).astype(jnp.float32)) * obs.weight).reshape(-1)
     idx = jax.random.choice(key, m.shape[0], (num_pairs, 2), p=m / jnp.maximum(m.sum(), 1e-6))

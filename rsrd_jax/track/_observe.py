@@ -198,6 +198,7 @@ class Observer:
         ring[:2], ring[-2:], ring[:, :2], ring[:, -2:] = True, True, True, True
         sel = ring & (weight > 0)
         bg = np.median(feats[sel], axis=0) if sel.any() else np.median(feats.reshape(-1, feats.shape[-1]), axis=0)
+        bg_rgb = np.median(rgb[sel], axis=0) if sel.any() else np.median(rgb.reshape(-1, 3), axis=0)
         return FrameObs(
             intrinsics=self.grid_intrinsics(box),
             features=jnp.asarray(feats),
@@ -205,4 +206,5 @@ class Observer:
             rgb=jnp.asarray(rgb),
             mono=jnp.asarray(mono),
             bg_feature=jnp.asarray(bg, jnp.float32),
+            bg_rgb=jnp.asarray(bg_rgb, jnp.float32),
         )
