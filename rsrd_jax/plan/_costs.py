@@ -75,6 +75,10 @@ class PoseData(eqx.Module):
     """TCP targets (right, left), robot frame, wxyz_xyz."""
     active: Float[Array, "*k 2"]
     """1 for an arm that tracks its target, 0 for an arm held near home."""
+    q_ref: Float[Array, "*k 16"] | None = None
+    """Optional per-keyframe joint reference (e.g. to end an approach at a given configuration)."""
+    ref_weight: Float[Array, "*k"] | None = None
+    """Weight of ``q - q_ref`` per keyframe (required with ``q_ref``)."""
 
 
 class CollisionData(eqx.Module):
@@ -91,8 +95,9 @@ def strip_robot(robot: YumiModel) -> YumiModel:
     return dataclasses.replace(robot, mjx_model=None)
 
 
-def pose_residual(q: Float[Array, "16"], d: PoseData, p: CostParams) -> Float[Array, "26"]:
-    """Pose residual of one keyframe: per arm 6 (active) + 7 (inactive hold) entries, 26 total."""
+def pose_residual(q: Float[Array, "16"], d: PoseData, p: CostParams) -> Float[Array, " r"]:
+    """Pose residual of one keyframe: per arm 6 (active) + 7 (inactive hold) entries, 26 total,
+    plus 16 ``ref_weight (q - q_ref)`` entries when the data has a joint reference."""
     w = p.weights
     T = forward_kinematics(p.robot, q, check_finite=False).T_world_tcp
     tgt = jaxlie.SE3(d.target)
@@ -102,6 +107,8 @@ def pose_residual(q: Float[Array, "16"], d: PoseData, p: CostParams) -> Float[Ar
     for a, sl in enumerate((RIGHT_ARM, LEFT_ARM)):
         act = d.active[a]
         out += [act * pos[a], act * rot[a], (1.0 - act) * w.hold * (q[sl] - p.robot.home[sl])]
+    if d.q_ref is not None:
+        out.append(d.ref_weight * (q - d.q_ref))
     return jnp.concatenate(out)
 
 

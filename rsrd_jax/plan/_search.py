@@ -239,6 +239,7 @@ class _Batch(eqx.Module):
 def _run_candidates(
     params: CostParams, robot_eval, obj, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
     T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool,
+    q_ref: np.ndarray | None = None, ref_weight: np.ndarray | None = None,
 ) -> _Batch:
     """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded)."""
     n = x0.shape[0]
@@ -255,7 +256,11 @@ def _run_candidates(
         xs, ts, acts = pad(x0), pad(target), pad(active)
         K = xs.shape[1]
         acts_k = np.repeat(np.asarray(acts, np.float32)[:, None], K, 1)  # (chunk, K, 2)
-        pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k))
+        if q_ref is None:
+            pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k))
+        else:
+            pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k), jnp.asarray(pad(q_ref), jnp.float32),
+                            jnp.asarray(pad(ref_weight), jnp.float32))
         sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
         ev = _evaluate(robot_eval, obj, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
                        jnp.asarray(mask), 0.0)
@@ -264,8 +269,9 @@ def _run_candidates(
     return _Batch(*cat)
 
 
-def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig) -> tuple[np.ndarray, dict]:
-    """Apply the stages in order; returns the surviving mask and counts rejected per stage."""
+def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True) -> tuple[np.ndarray, dict]:
+    """Apply the stages in order; returns the surviving mask and counts rejected per stage
+    (collisions only when ``collision``)."""
     counts = {}
     alive = valid.copy()
     counts["grasp_invalid"] = int((~valid).sum())
@@ -278,7 +284,7 @@ def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig) -> tuple[np.ndarray, 
     ok = b.viol <= cfg.limit_tolerance
     counts["joint_limits"] = int((alive & ~ok).sum())
     alive &= ok
-    ok = np.all(b.mins >= cfg.collision_margin, axis=1)
+    ok = np.all(b.mins >= cfg.collision_margin, axis=1) if collision else np.ones_like(alive)
     counts["collision"] = int((alive & ~ok).sum())
     alive &= ok
     return alive, counts
@@ -435,7 +441,9 @@ def plan_robot(
         mask = _hand_part_mask(robot, obj, [k])
         b = _run_candidates(params, robot_lite, obj, x0, target, active, T_robot_part, mask, config, acceleration)
         valid = np.asarray(g.valid, bool)
-        alive, counts = _reject(b, valid, config)
+        # Bimanual: the other arm is still at home here, so collisions are checked after the
+        # joint 16-DoF solve only.
+        alive, counts = _reject(b, valid, config, collision=not config.bimanual)
         return b, alive, counts, target
 
     best = None
@@ -592,7 +600,14 @@ def _approach(cands, params, robot_lite, robot, obj, T_robot_part, cfg: PlanConf
             target[m, :, a] = np.asarray(path.wxyz_xyz)
     T_part0 = np.repeat(T_robot_part[:1], A, 0)
     mask = _hand_part_mask(robot, obj, sorted(grasped))
-    b = _run_candidates(params, robot_lite, obj, x0, target, active, T_part0, mask, cfg, acceleration)
+    # No rest pull here; instead a joint reference to the trajectory's first keyframe (weak along
+    # the segment, strong at its end) keeps the segment in that keyframe's null-space branch.
+    params_a = eqx.tree_at(lambda p: p.weights.rest, params, jnp.zeros_like(params.weights.rest))
+    q_ref = x0.copy()
+    ref_w = np.full((n, A), 0.1, np.float32)
+    ref_w[:, -1] = 10.0  # end at the trajectory's first keyframe
+    b = _run_candidates(params_a, robot_lite, obj, x0, target, active, T_part0, mask, cfg, acceleration,
+                        q_ref, ref_w)
     alive, counts = _reject(b, np.ones(n, bool), cfg)
     # The last waypoint reaches the same TCP pose as the trajectory's first keyframe, possibly
     # elsewhere in the arm's null space; it is replaced by that keyframe (gap recorded).
