@@ -1,5 +1,5 @@
-"""Planning: sparse Levenberg–Marquardt trajectory solver (trajectory costs, candidate search and
-approach motions come later).
+"""Planning: sparse Levenberg–Marquardt trajectory solver, YuMi trajectory costs, grasp candidate
+search with rejection counts, approach motions and the RobotPlan (``plan_robot``).
 
 Owns the generic block-banded least-squares solver used for keyframed joint trajectories. It does
 not own robot kinematics (``rsrd_jax.robot``) or grasp sampling (``rsrd_jax.grasp``).
@@ -51,6 +51,7 @@ from ._search import (
     RobotPlan,
     grasp_targets,
     keyframe_indices,
+    object_geometry,
     plan_robot,
     resample_keyframes,
 )
@@ -69,6 +70,7 @@ __all__ += [
     "StudioPlanInputs",
     "grasp_targets",
     "keyframe_indices",
+    "object_geometry",
     "plan_robot",
     "problem_data",
     "read_robot_object_pose",
