@@ -147,13 +147,9 @@ def run(quick: bool) -> list[dict]:
         refs["jaxopt LM (matrix-free CG, default)"] = "cg"
     for name, make in refs.items():
         if make is None or make == "cg":
-            lm = jaxopt.LevenbergMarquardt(
-                residual_fun=flat_res,
-                maxiter=40,
-                tol=1e-3,
-                solver="cholesky" if make is None else "cg",
-                materialize_jac=make is None,
-            )
+            # jaxopt's default linear solver is matrix-free CG (jaxopt.linear_solve.solve_cg).
+            kw = dict(solver="cholesky", materialize_jac=True) if make is None else {}
+            lm = jaxopt.LevenbergMarquardt(residual_fun=flat_res, maxiter=40, tol=1e-3, **kw)
             fn = jax.jit(lambda v, lm=lm: (lambda o: (o.params, o.state.iter_num))(lm.run(v)))
         else:
             solver = make()

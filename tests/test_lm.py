@@ -378,7 +378,7 @@ def test_host_boundary_errors():
 
 
 @pytest.mark.slow
-def test_yumi_trajectory_matches_optimistix():
+def test_yumi_trajectory_matches_optimistix_and_jaxopt():
     """The bimanual YuMi problem (both TCP poses, rest, limits, velocity smoothness), small T."""
     optx = pytest.importorskip("optimistix")
     from rsrd_jax.robot import load_yumi, tcp_poses
@@ -404,6 +404,16 @@ def test_yumi_trajectory_matches_optimistix():
     assert sol.result == LMResult.converged
     fn = lambda y, _: prob.residual_vector(y, data, None)  # noqa: E731
     ref = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-7, atol=1e-7), x0, max_steps=300, throw=False)
-    c_ref = float(prob.cost(ref.value, data, None))
-    assert abs(float(sol.cost) - c_ref) <= 1e-3 * c_ref + 1e-7
-    np.testing.assert_allclose(sol.x, ref.value, atol=5e-3)
+    jaxopt = pytest.importorskip("jaxopt")
+    lm = jaxopt.LevenbergMarquardt(
+        residual_fun=lambda v: prob.residual_vector(v.reshape(x0.shape), data, None),
+        maxiter=100,
+        tol=1e-4,
+        solver="cholesky",
+        materialize_jac=True,
+    )
+    ref2 = lm.run(x0.reshape(-1)).params.reshape(x0.shape)
+    for y in (ref.value, ref2):
+        c_ref = float(prob.cost(y, data, None))
+        assert abs(float(sol.cost) - c_ref) <= 1e-3 * c_ref + 1e-7
+        np.testing.assert_allclose(sol.x, y, atol=5e-3)
