@@ -232,6 +232,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         num_keyframes=a.keyframes, bimanual=a.bimanual, parts=tuple(a.parts) if a.parts else None,
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
+        hand_tolerance=a.hand_tolerance,
     )  # fmt: skip
     t0 = time.perf_counter()
     plan = plan_robot(load_yumi(), part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg)
@@ -309,9 +310,9 @@ def build_parser() -> argparse.ArgumentParser:
     bd.add_argument("capture", help="capture directory (nerfstudio transforms.json)")
     bd.add_argument("--out", required=True, help="model directory (model.safetensors + model.json)")
     bd.add_argument("--overwrite", action="store_true", help="replace an existing model")
-    bd.add_argument("--iterations", type=int, default=None, help="3DGS iterations (default 1500)")
+    bd.add_argument("--iterations", type=int, default=None, help="3DGS iterations (default 1000)")
     bd.add_argument("--field-iterations", type=int, default=None, help="feature-field iterations (default 600)")
-    bd.add_argument("--max-gaussians", type=int, default=None, help="Gaussian capacity (default 16384)")
+    bd.add_argument("--max-gaussians", type=int, default=None, help="Gaussian capacity (default 12288)")
     bd.add_argument("--refine-poses", action="store_true", help="optimise per-view camera pose corrections")
     bd.add_argument("--onnx", default=None, help="ViT/DINOv2 ONNX file instead of the embedded EfficientNet")
     bd.add_argument("--pca-dim", type=int, default=64, help="PCA dimension of the features")
@@ -344,6 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--approach", type=float, default=0.06, help="pre-grasp offset along the gripper axis (m)")
     pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
     pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
+    pl.add_argument("--hand-tolerance", type=float, default=0.0,
+                    help="allowed gripper penetration into other parts' box proxies (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")
     pl.set_defaults(func=cmd_plan)

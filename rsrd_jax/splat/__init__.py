@@ -31,3 +31,16 @@ from ._raster import (
     choose_config as choose_config,
     render as render,
 )
+from ._fit import (
+    FitConfig as FitConfig,
+    FitResult as FitResult,
+    fit_gaussians as fit_gaussians,
+    init_from_points as init_from_points,
+    points_from_depth as points_from_depth,
+    points_in_frustums as points_in_frustums,
+    psnr as psnr,
+    refined_camera as refined_camera,
+    scene_extent as scene_extent,
+    size_render_config as size_render_config,
+    ssim as ssim,
+)
