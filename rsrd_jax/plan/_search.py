@@ -89,6 +89,10 @@ class PlanConfig(eqx.Module):
     """A distance below this (m) is a collision (self, table, object)."""
     object_pad: float = 0.0
     """Padding of the object boxes built from part points (m)."""
+    hand_tolerance: float = 0.0
+    """Penetration (m) allowed between the gripper (base + fingers) and other parts' box proxies
+    (the proxies and the 4 cm gripper-base sphere over-cover; 0 = strict). The reported object
+    distance includes this allowance."""
     object_boxes_per_part: int = 8
     """Boxes per part in the object's collision proxy (k-means clusters of its points)."""
     approach_distance: float = 0.06
@@ -215,14 +219,16 @@ def _solve(params: CostParams, x0, pose: PoseData, config: SolverConfig, acceler
 
 
 @eqx.filter_jit
-def _evaluate(robot, obj, q, target, active, T_world_part, hand_part_mask, margin):
+def _evaluate(robot, obj, q, target, active, T_world_part, hand_part_mask, hand_tolerance):
     """Per candidate: max pos/rot error of active arms, max limit violation, min distances."""
     pos, rot = tcp_errors(robot, q, target)  # (n, K, 2)
     pos = jnp.max(jnp.where(active > 0, pos, 0.0), axis=1)
     rot = jnp.max(jnp.where(active > 0, rot, 0.0), axis=1)
     viol = jnp.max(jnp.maximum(q - robot.upper, robot.lower - q), axis=(1, 2))
     res = collision_distances(robot, q, obj, T_world_part[None], margin=0.0, check_finite=False)
-    d_obj = jnp.where(hand_part_mask, res.object_distance, jnp.inf)
+    # hand capsules get ``hand_tolerance`` (m) of allowed penetration into other parts' proxies
+    hand = robot.geom.hand_mask[:, None]
+    d_obj = jnp.where(hand_part_mask, res.object_distance + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
     min_obj = jnp.min(d_obj, axis=(-2, -1))
     mins = jnp.stack([jnp.min(res.min_self, axis=1), jnp.min(res.min_table, axis=1), jnp.min(min_obj, axis=1)], -1)
     return pos, rot, viol, mins
@@ -266,7 +272,7 @@ def _run_candidates(
                             jnp.asarray(pad(ref_weight), jnp.float32))
         sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
         ev = _evaluate(robot_eval, obj, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
-                       jnp.asarray(mask), 0.0)
+                       jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32))
         outs.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
     cat = [np.concatenate(x) for x in zip(*outs)]
     return _Batch(*cat)
