@@ -78,3 +78,38 @@ def test_seed_rotations_distinct_and_upright():
     assert np.all(R[:, 1, 2] < -0.5)
     yaws = {tuple(np.round(r[:, 0], 3)) for r in R[:8]}
     assert len(yaws) == 8
+
+
+def test_onnx_depth_anything_inverts_disparity(tmp_path):
+    """A user-supplied Depth-Anything-style ONNX file: its disparity output is inverted to a
+    relative depth (larger = farther) at the frame's size."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from rsrd_jax.track import OnnxDepthAnything
+
+    # disparity = mean over channels of the normalised input + 3 (positive), shape 1×H×W
+    three = helper.make_tensor("three", TensorProto.FLOAT, [], [3.0])
+    nodes = [
+        helper.make_node("ReduceMean", ["x"], ["m"], axes=[1], keepdims=0),
+        helper.make_node("Add", ["m", "three"], ["disp"]),
+    ]
+    graph = helper.make_graph(
+        nodes, "disp", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, 32, 32])],
+        [helper.make_tensor_value_info("disp", TensorProto.FLOAT, [1, 32, 32])], initializer=[three],
+    )  # fmt: skip
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 10
+    onnx.save(model, tmp_path / "depth.onnx")
+    src = OnnxDepthAnything(tmp_path / "depth.onnx", input_size=32)
+    frame = np.full((24, 40, 3), 200, np.uint8)
+    d = src(0, frame)
+    assert d.shape == (24, 40)
+    norm = (200 / 255 - np.array([0.485, 0.456, 0.406])) / np.array([0.229, 0.224, 0.225])
+    np.testing.assert_allclose(d, 1.0 / (norm.mean() + 3.0), rtol=1e-4)
+    # brighter (nearer, larger disparity) on the right -> smaller relative depth on the right
+    ramp = np.repeat(np.linspace(0, 255, 40, dtype=np.uint8)[None, :, None], 24, 0).repeat(3, 2)
+    d = src(0, ramp)
+    assert d[:, 2].mean() > d[:, -3].mean()
+    with pytest.raises(Exception, match="not found"):
+        OnnxDepthAnything(tmp_path / "missing.onnx")

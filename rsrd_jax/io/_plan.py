@@ -39,32 +39,18 @@ _SHAPES = {
 _INT = {"keyframe_indices", "part", "grasp_index"}
 
 
-@dataclasses.dataclass(frozen=True)
-class PlanArtefact:
-    """A RobotPlan read from disk (numpy arrays; see the module docstring)."""
+def _success(self) -> bool:
+    return self.result == "success"
 
-    keyframe_indices: np.ndarray
-    q_keyframes: np.ndarray
-    q_video: np.ndarray
-    q_approach: np.ndarray
-    tcp_target: np.ndarray
-    tcp_approach_target: np.ndarray
-    active: np.ndarray
-    part: np.ndarray
-    grasp_index: np.ndarray
-    T_part_grasp: np.ndarray
-    grasp_width: np.ndarray
-    T_robot_obj: np.ndarray
-    position_error: np.ndarray
-    rotation_error: np.ndarray
-    min_distance: np.ndarray
-    result: str
-    message: str
-    info: dict
 
-    @property
-    def success(self) -> bool:
-        return self.result == "success"
+# the fields are the arrays of `_SHAPES` (one list, not two) plus result/message/info
+PlanArtefact = dataclasses.make_dataclass(
+    "PlanArtefact",
+    [(k, np.ndarray) for k in _SHAPES] + [("result", str), ("message", str), ("info", dict)],
+    frozen=True,
+    namespace={"success": property(_success), "__doc__": "A RobotPlan read from disk (numpy arrays; see the module docstring)."},
+)
+PlanArtefact.__module__ = __name__
 
 
 def save_plan(plan, out_dir: str | Path) -> Path:
