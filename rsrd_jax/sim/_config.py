@@ -1,0 +1,85 @@
+"""Options of the simulated execution (host-side; nothing here is traced)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import equinox as eqx
+
+
+class SuccessConfig(eqx.Module):
+    """Thresholds of the per-stage success tests (paper Table 1: Grasp, Exec)."""
+
+    slip_position: float = 0.015
+    """Grasp: largest allowed change (m) of the grasped part's origin in the TCP frame between
+    the start of the motion and any later step while held."""
+    slip_rotation_deg: float = 20.0
+    """Grasp: largest allowed change (degrees) of the grasped part's orientation in the TCP frame."""
+    final_position: float = 0.015
+    """Exec: largest allowed distance (m) between every part's final origin (root frame) and the
+    demonstration's final one."""
+    final_rotation_deg: float = 15.0
+    """Exec: largest allowed angle (degrees) between every part's final orientation (root frame)
+    and the demonstration's final one."""
+    path_position: float = 0.03
+    """Exec ("moved the same way"): largest allowed distance (m) of a moving part from the
+    demonstration's pose at the same video frame, over the whole motion."""
+    path_rotation_deg: float = 30.0
+    """Exec: largest allowed angle (degrees) from the demonstration's pose at the same frame."""
+    moving_threshold: float = 0.005
+    """A part counts as moved by the demo when its origin moves more than this (m) or it turns
+    more than 3° away from its first-frame pose at some frame (root frame)."""
+
+
+class SimConfig(eqx.Module):
+    """Options of :func:`rsrd_jax.sim.simulate_plan`: scene physics, motion timing, recording."""
+
+    root: Literal["free", "weld"] = "free"
+    """How the object's root part is held: ``"free"`` rests on the table with friction (a free
+    joint; it can slide or tip, and the base displacement is reported), ``"weld"`` fixes it to
+    the world at the true pose (a simplification the paper's real trials do not have)."""
+    start: Literal["pregrasp", "home"] = "pregrasp"
+    """Where the robot starts: at the plan's pre-grasp (``q_approach[0]``; the transit from home is
+    not part of a RobotPlan — RSRD plans it separately with cuRobo's collision-aware motion
+    generator), or at ``HOME_Q`` followed by an unplanned joint-space transit (which may hit the
+    object, e.g. long objects reach under the home TCPs)."""
+    joint_damping: float = 0.05
+    """Damping of the object's hinge/slide joints (N·m·s/rad or N·s/m; studio default)."""
+    joint_frictionloss: float = 0.01
+    """Dry friction of the object's joints (N·m or N; studio default)."""
+    object_friction: float = 1.0
+    """Sliding friction of the object's geoms (MuJoCo combines pairs by the maximum; the YuMi's
+    finger pads have 1.5, the table 1.0)."""
+    min_root_mass: float = 0.4
+    """With a free root: the root part's density is raised so that it weighs at least this (kg).
+    The studio's density (300 kg/m³) makes 10–100 g objects that the friction of their own
+    joints drags along the table; real objects (a stapler, a box, a drawer cabinet) are heavier
+    or held down. 0 keeps the studio's mass."""
+    object_density: float | None = None
+    """Override of the object's density (kg/m³; None keeps the studio's 300)."""
+    timestep: float = 0.002
+    """Physics step (s)."""
+    joint_speed: float = 0.8
+    """Largest commanded arm joint speed along every segment (rad/s); the plan's per-frame
+    trajectory ``q_video`` is time-scaled so that no joint exceeds it."""
+    min_frame_time: float = 1.0 / 30.0
+    """Shortest time between two video-frame waypoints (s; the demo's frame period)."""
+    settle_time: float = 0.3
+    """Time (s) the scene settles at home before moving, and after each gripper command."""
+    grip_timeout: float = 1.5
+    """Longest time (s) the grippers close before the motion starts anyway."""
+    grip_stall_speed: float = 0.002
+    """Finger speed (m/s) below which a closing gripper counts as stalled (on the part or empty)."""
+    retreat_distance: float = 0.08
+    """After release, the TCPs back off this far (m) along their approach axis (−gripper z)."""
+    disturbance_tolerance: float = 0.01
+    """Before the grasp: largest allowed motion (m) of any part point proxy (part origins) caused
+    by the transit and approach (otherwise the Grasp stage fails with "object disturbed")."""
+    fps: float = 30.0
+    """Rate at which states (and video frames) are recorded (Hz of simulated time)."""
+    video_size: tuple[int, int] = (320, 240)
+    """Width, height of the video frames (pixels)."""
+    video_fovy_deg: float = 50.0
+    """Vertical field of view of the robot-view camera."""
+    success: SuccessConfig = SuccessConfig()
+    """Thresholds of the stage tests."""

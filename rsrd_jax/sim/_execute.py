@@ -1,0 +1,502 @@
+"""Executes a RobotPlan in MuJoCo C and scores it per stage (RSRD Table 1: Init, Traj, Grasp, Exec).
+
+Sequence (position servos track a time-scaled joint reference; ``servo_ctrl`` feed-forward):
+settle at home → transit home → pre-grasp (smooth point-to-point) → approach (pre-grasp → grasp,
+grippers open) → close the active grippers until the fingers stall → follow ``q_video``
+(piecewise linear, time-scaled so no arm joint exceeds ``joint_speed``) → open → retreat along
+−TCP z → settle. The object is simulated with its real joints; nothing is welded to the gripper,
+so a part moves only through finger contacts and friction.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import equinox as eqx
+import mujoco
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..io import ArtefactError
+from ..robot import HOME_Q, VELOCITY_LIMIT
+from ._config import SimConfig
+from ._ik import tcp_ik
+from ._scene import SimObject, SimScene, _mat, _vec, build_sim_scene, load_sim_object
+
+STAGE_NAMES = ("init", "traj", "grasp", "exec")
+"""Stages in the paper's order (Table 1); ``init`` (registration) is filled in by the caller."""
+PHASES = ("settle", "transit", "approach", "close", "motion", "release", "retreat", "hold")
+"""Execution phases, in order (``SimResult.phase`` indexes this)."""
+
+
+class SimOutcome(eqx.Enumeration):
+    """First stage that failed (or success)."""
+
+    success = "every stage succeeded"
+    init = "registration error above the thresholds"
+    traj = "no feasible plan (not executed)"
+    grasp = "the gripper did not hold the intended part when the motion started, or it slipped"
+    exec = "the object did not end in the demonstration's final configuration, or moved differently"
+
+
+class SimResult(eqx.Module):
+    """Outcome of :func:`simulate_plan` (host numpy). N recorded states at ``config.fps``."""
+
+    outcome: SimOutcome
+    """First failed stage (or success)."""
+    stages: dict = eqx.field(static=True)
+    """{stage: True/False/None} for init, traj, grasp, exec (None = not evaluated)."""
+    reasons: dict = eqx.field(static=True)
+    """{stage: human-readable reason} for every evaluated stage."""
+    metrics: dict = eqx.field(static=True)
+    """JSON-able numbers: slip, contacts, final/path errors per part, base displacement,
+    simulated and wall time, real-time factor."""
+    executed: bool = eqx.field(static=True)
+    """False when the plan was not run (failed or colliding plan)."""
+    time: np.ndarray
+    """(N,) simulated time of each record (s)."""
+    phase: np.ndarray
+    """(N,) index into ``PHASES``."""
+    robot_q: np.ndarray
+    """(N, 16) robot joints (JOINT_NAMES order)."""
+    object_qpos: np.ndarray
+    """(N, nq_obj) object joint positions (free joints as xyz + wxyz)."""
+    part_poses: np.ndarray
+    """(N, P, 7) part poses in the robot base frame (wxyz_xyz)."""
+    tcp_poses: np.ndarray
+    """(N, 2, 7) TCP poses in the robot base frame."""
+    pad_contact: np.ndarray
+    """(N, 2, 2) finger pad (arm, finger) touches the arm's intended part."""
+    frames: np.ndarray | None
+    """(F, H, W, 3) uint8 robot-view video frames, or None."""
+
+    @property
+    def success(self) -> bool:
+        """All evaluated stages succeeded."""
+        return bool(self.outcome == SimOutcome.success)
+
+    @property
+    def outcome_name(self) -> str:
+        """Name of ``outcome`` ("success", "traj", "grasp", "exec", "init")."""
+        for name, item in SimOutcome._name_to_item.items():
+            if bool(item == self.outcome):
+                return name
+        raise ValueError(f"unknown SimOutcome {self.outcome!r}")
+
+    def to_json(self) -> dict:
+        """The JSON-able summary written to ``sim.json``."""
+        return {"format": SIM_FORMAT, "outcome": self.outcome_name, "success": self.success,
+                "executed": self.executed, "stages": self.stages, "reasons": self.reasons,
+                "metrics": self.metrics}  # fmt: skip
+
+
+SIM_FORMAT = "rsrd_jax.sim/1"
+
+
+def _first_failure(stages: dict) -> SimOutcome:
+    for s in STAGE_NAMES:
+        if stages.get(s) is False:
+            return getattr(SimOutcome, s)
+    return SimOutcome.success
+
+
+def with_init(result: SimResult, ok: bool, reason: str, **metrics) -> SimResult:
+    """``result`` with the Init stage (registration, evaluated by the caller) filled in.
+
+    Args:
+        ok: registration error below the caller's thresholds.
+        reason: e.g. "rotation error 3.1° ≤ 10°, translation 4 mm ≤ 20 mm".
+        metrics: extra numbers stored under ``metrics["init"]``.
+    """
+    stages = dict(result.stages, init=bool(ok))
+    reasons = dict(result.reasons, init=reason)
+    m = dict(result.metrics, init=metrics) if metrics else dict(result.metrics)
+    return SimResult(
+        outcome=_first_failure(stages), stages=stages, reasons=reasons, metrics=m, executed=result.executed,
+        time=result.time, phase=result.phase, robot_q=result.robot_q, object_qpos=result.object_qpos,
+        part_poses=result.part_poses, tcp_poses=result.tcp_poses, pad_contact=result.pad_contact,
+        frames=result.frames,
+    )  # fmt: skip
+
+
+def _plan_fields(plan) -> tuple[bool, str, str]:
+    name = getattr(plan, "result_name", None) or str(plan.result)
+    return bool(plan.success), name, str(getattr(plan, "message", ""))
+
+
+def _validate(plan, obj: SimObject) -> None:
+    for f in ("q_video", "q_approach", "active", "part", "min_distance"):
+        if not hasattr(plan, f):
+            raise ValueError(f"plan has no field {f!r} (expected a RobotPlan or rsrd_jax.io.PlanArtefact)")
+    ok, _, _ = _plan_fields(plan)
+    if not ok:
+        return
+    qv, qa = np.asarray(plan.q_video), np.asarray(plan.q_approach)
+    if qv.ndim != 2 or qv.shape[1] != 16 or len(qv) < 1 or qa.ndim != 2 or qa.shape[1] != 16 or len(qa) < 1:
+        raise ValueError(f"plan: q_video {qv.shape} and q_approach {qa.shape} must be (n ≥ 1, 16)")
+    if not (np.all(np.isfinite(qv)) and np.all(np.isfinite(qa))):
+        raise ValueError("plan: q_video / q_approach contain non-finite joints")
+    T = obj.T_obj_part_demo.shape[0]
+    if len(qv) != T:
+        raise ArtefactError(f"plan q_video has {len(qv)} frames but the demo of {obj.name!r} "
+                            f"({obj.directory}) has {T}: the plan is for another demo")  # fmt: skip
+    active, part = np.asarray(plan.active, bool), np.asarray(plan.part, int)
+    if not active.any():
+        raise ValueError("plan: no active arm")
+    for a in np.flatnonzero(active):
+        if not 0 <= part[a] < obj.num_parts:
+            raise ArtefactError(f"plan: arm {a} grasps part {part[a]} but {obj.name!r} has {obj.num_parts} "
+                                f"parts: the plan is for another object model")  # fmt: skip
+
+
+def _angle(R: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+
+
+def _pose_err(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), _angle(A[:3, :3].T @ B[:3, :3])
+
+
+class _Runner:
+    """Steps the scene along reference segments, records states."""
+
+    def __init__(self, scene: SimScene, plan, config: SimConfig, video: bool, pbar):
+        self.s, self.cfg, self.m, self.d = scene, config, scene.model, scene.data
+        self.active = np.asarray(plan.active, bool)
+        self.part = np.asarray(plan.part, int)
+        self.grip = np.array([HOME_Q[14], HOME_Q[15]])
+        self.rec: dict[str, list] = {k: [] for k in ("time", "phase", "q", "oq", "parts", "tcp", "pads")}
+        self.frames: list | None = [] if video else None
+        self.renderer = mujoco.Renderer(self.m, config.video_size[1], config.video_size[0]) if video else None
+        if self.renderer is not None:  # shadows and reflections cost ~100x on llvmpipe
+            self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+            self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        self.next_rec = 0.0
+        self.phase = 0
+        self.pbar = pbar
+        self.n_steps = 0
+        oj = scene.object_joints
+        self.oq = np.concatenate([np.arange(self.m.jnt_qposadr[j], self.m.jnt_qposadr[j] +
+                                            (7 if self.m.jnt_type[j] == 0 else 1)) for j in oj]) if len(oj) else np.zeros(0, int)  # fmt: skip
+        self.contact_log: list = []
+        gid2part = np.full(self.m.ngeom, -1)
+        for k, g in enumerate(scene.part_geoms):
+            gid2part[g] = k
+        self.gid2part = gid2part
+        self.samples: list = []  # (index, part poses) at the motion's video-frame waypoints
+        self.robot_object_contacts = 0
+
+    def close(self):
+        if self.renderer is not None:
+            self.renderer.close()
+
+    def pad_contacts(self) -> np.ndarray:
+        """(2, 2) pad touches its arm's intended part."""
+        out = np.zeros((2, 2), bool)
+        d, pads = self.d, self.s.pad_geoms
+        for c in d.contact[: d.ncon]:
+            for g, h in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
+                hit = np.argwhere(pads == g)
+                if len(hit) and self.gid2part[h] >= 0:
+                    a, f = hit[0]
+                    if self.gid2part[h] == self.part[a]:
+                        out[a, f] = True
+        return out
+
+    def record(self):
+        s, d = self.s, self.d
+        self.rec["time"].append(d.time)
+        self.rec["phase"].append(self.phase)
+        self.rec["q"].append(s.robot_q())
+        self.rec["oq"].append(d.qpos[self.oq].copy())
+        self.rec["parts"].append(np.stack([_vec(T) for T in s.part_poses()]))
+        self.rec["tcp"].append(np.stack([_vec(T) for T in s.tcp_poses()]))
+        self.rec["pads"].append(self.pad_contacts())
+        if self.renderer is not None:
+            self.renderer.update_scene(d, camera=s.camera)
+            self.frames.append(self.renderer.render().copy())
+
+    def step(self, q_ref: np.ndarray, qdot_ref: np.ndarray):
+        q_ref = q_ref.copy()
+        q_ref[14:16] = self.grip
+        qdot_ref = qdot_ref.copy()
+        qdot_ref[14:16] = 0.0
+        self.s.servo_ctrl(q_ref, qdot_ref)
+        mujoco.mj_step(self.m, self.d)
+        if self.d.time >= self.next_rec - 1e-9:
+            self.record()
+            self.next_rec += 1.0 / self.cfg.fps
+        self.n_steps += 1
+        if self.pbar is not None and self.n_steps % 50 == 0:
+            self.pbar.update(50 * self.m.opt.timestep)
+
+    def hold(self, q: np.ndarray, duration: float, until=None, min_time: float = 0.0):
+        t0 = self.d.time
+        while self.d.time - t0 < duration:
+            self.step(q, np.zeros(16))
+            if until is not None and self.d.time - t0 >= min_time and until():
+                break
+
+    def move(self, q0: np.ndarray, q1: np.ndarray, min_duration: float = 0.3):
+        """Smooth point-to-point move (smoothstep profile, peak joint speed ≤ joint_speed)."""
+        dq = q1 - q0
+        D = max(min_duration, 1.5 * np.max(np.abs(dq[:14])) / self.cfg.joint_speed)
+        if D <= 0.0:
+            return
+        t0 = self.d.time
+        while (tau := (self.d.time - t0) / D) < 1.0:
+            s, sd = tau * tau * (3 - 2 * tau), 6 * tau * (1 - tau) / D
+            self.step(q0 + s * dq, sd * dq)
+        self.step(q1, np.zeros(16))
+
+    def path(self, Q: np.ndarray, sample: bool = False):
+        """Piecewise-linear path through waypoints Q (n, 16), time-scaled; optionally samples part
+        poses when each waypoint's time is reached (for the path-following test)."""
+        dt = np.maximum(self.cfg.min_frame_time, np.max(np.abs(np.diff(Q[:, :14], axis=0)), axis=1) / self.cfg.joint_speed)
+        t_way = np.concatenate([[0.0], np.cumsum(dt)])
+        t0 = self.d.time
+        i = 0
+        if sample:
+            self.samples.append(self.s.part_poses())
+        while True:
+            t = self.d.time - t0
+            while i < len(dt) and t >= t_way[i + 1]:
+                i += 1
+                if sample:
+                    self.samples.append(self.s.part_poses())
+            if i >= len(dt):
+                break
+            u = (t - t_way[i]) / dt[i]
+            self.step(Q[i] + u * (Q[i + 1] - Q[i]), (Q[i + 1] - Q[i]) / dt[i])
+        self.step(Q[-1], np.zeros(16))
+
+
+def _finish(stages, reasons, metrics, executed, run: _Runner | None, P, nq) -> SimResult:
+    if run is None or not run.rec["time"]:
+        z = np.zeros(0)
+        return SimResult(outcome=_first_failure(stages), stages=stages, reasons=reasons, metrics=metrics,
+                         executed=executed, time=z, phase=np.zeros(0, int), robot_q=np.zeros((0, 16)),
+                         object_qpos=np.zeros((0, nq)), part_poses=np.zeros((0, P, 7)), tcp_poses=np.zeros((0, 2, 7)),
+                         pad_contact=np.zeros((0, 2, 2), bool), frames=None)  # fmt: skip
+    r = run.rec
+    return SimResult(
+        outcome=_first_failure(stages), stages=stages, reasons=reasons, metrics=metrics, executed=executed,
+        time=np.asarray(r["time"]), phase=np.asarray(r["phase"], int), robot_q=np.stack(r["q"]),
+        object_qpos=np.stack(r["oq"]), part_poses=np.stack(r["parts"]), tcp_poses=np.stack(r["tcp"]),
+        pad_contact=np.stack(r["pads"]), frames=np.stack(run.frames) if run.frames else None,
+    )  # fmt: skip
+
+
+def simulate_plan(
+    plan,
+    obj: SimObject | str | Path,
+    config: SimConfig = SimConfig(),
+    T_robot_root: np.ndarray | None = None,
+    video: bool = False,
+    progress: bool = True,
+) -> SimResult:
+    """Executes a plan on the simulated YuMi with the studio object and scores each stage.
+
+    Stages (RSRD Table 1):
+      * **Traj**: the plan succeeded (``plan.success``) and does not collide
+        (``min_distance`` ≥ 0 where known). Otherwise it is reported and *not* executed.
+      * **Grasp**: when the motion starts, both finger pads of every active arm touch the arm's
+        intended part (contacts with that part's geoms), the transit/approach did not disturb the
+        object (``disturbance_tolerance``), and while held the part does not slip relative to the
+        TCP beyond ``success.slip_position`` / ``slip_rotation_deg``.
+      * **Exec**: after release and retreat every part's pose relative to the root matches the
+        demo's final ``T_obj_part`` (``final_position`` / ``final_rotation_deg``), and every part
+        the demo moves stayed near the demo's pose at each video frame while the plan was followed
+        (``path_position`` / ``path_rotation_deg``), i.e. it moved the same way.
+      * **Init** is the caller's (registration); see :func:`with_init`.
+
+    Args:
+        plan: a :class:`rsrd_jax.plan.RobotPlan` or :class:`rsrd_jax.io.PlanArtefact`.
+        obj: a :class:`SimObject` or a studio directory (``rsrd_jax.studio.make_object`` output).
+        config: physics, timing, recording and success thresholds.
+        T_robot_root: (7,) where the object really is (default: the studio's true pose); the plan
+            keeps whatever pose it was planned for.
+        video: record robot-view RGB frames at ``config.fps`` (``SimResult.frames``).
+        progress: show a progress bar over simulated time.
+
+    Returns:
+        :class:`SimResult` (stage results, reasons, metrics and the recorded states).
+
+    Raises:
+        ArtefactError / ValueError: a missing studio file, or a plan for another object/demo.
+    """
+    if not isinstance(obj, SimObject):
+        obj = load_sim_object(obj)
+    _validate(plan, obj)
+    P = obj.num_parts
+    cfg, sc = config, config.success
+    ok, result_name, message = _plan_fields(plan)
+    stages: dict = {s: None for s in STAGE_NAMES}
+    reasons: dict = {}
+    metrics: dict = {"plan_result": result_name}
+    if not ok:
+        stages["traj"] = False
+        reasons["traj"] = f"plan failed ({result_name}): {message}; not executed"
+        return _finish(stages, reasons, metrics, False, None, P, 0)
+    md = np.asarray(plan.min_distance, float)
+    if np.any(md[np.isfinite(md)] < 0):
+        stages["traj"] = False
+        reasons["traj"] = f"plan collides (min self/table/object distance {md.round(4).tolist()} m); not executed"
+        return _finish(stages, reasons, metrics, False, None, P, 0)
+    stages["traj"] = True
+    reasons["traj"] = f"plan {result_name}: {message}"
+
+    wall0 = time.perf_counter()
+    scene = build_sim_scene(obj, cfg, T_robot_root)
+    setup_s = time.perf_counter() - wall0
+    m, d = scene.model, scene.data
+    active, part = np.asarray(plan.active, bool), np.asarray(plan.part, int)
+    arms = np.flatnonzero(active)
+    qv, qa = np.asarray(plan.q_video, float).copy(), np.asarray(plan.q_approach, float).copy()
+    qv[:, 14:16] = qa[:, 14:16] = HOME_Q[14:16]
+    if cfg.start not in ("pregrasp", "home"):
+        raise ValueError(f"config.start must be 'pregrasp' or 'home', got {cfg.start!r}")
+    q_start = qa[0] if cfg.start == "pregrasp" else HOME_Q
+    # a rough total for the progress bar
+    est = (2 * cfg.settle_time + cfg.grip_timeout + 1.5 * np.abs(qa[0, :14] - q_start[:14]).max() / cfg.joint_speed
+           + np.sum(np.maximum(cfg.min_frame_time, np.abs(np.diff(np.concatenate([qa, qv]), axis=0)[:, :14]).max(1)
+                               / cfg.joint_speed)) + 2.0)  # fmt: skip
+    pbar = tqdm(total=round(float(est), 2), unit="sim s", desc=f"simulate {obj.name}", leave=False,
+                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim s [{elapsed}]") if progress else None  # fmt: skip
+    d.qpos[scene.robot_qpos] = q_start
+    d.qpos[scene.mimic_qpos] = q_start[14:16]
+    mujoco.mj_forward(m, d)
+    geoms_start = d.geom_xpos[np.concatenate(scene.part_geoms)].copy()
+    run = _Runner(scene, plan, cfg, video, pbar)
+    try:
+        # settle, transit to pre-grasp (from home only), approach with open grippers
+        run.phase = 0
+        run.hold(q_start, cfg.settle_time)
+        run.phase = 1
+        run.move(q_start, qa[0], min_duration=0.0 if cfg.start == "pregrasp" else 0.3)
+        run.phase = 2
+        run.path(qa)
+        disturbed = float(np.linalg.norm(d.geom_xpos[np.concatenate(scene.part_geoms)] - geoms_start, axis=1).max())
+        # close the active grippers until the fingers stall
+        run.phase = 3
+        run.grip[arms] = 0.0
+        fingers = scene.robot_dof[14 + arms]
+        run.hold(qa[-1], cfg.grip_timeout, until=lambda: np.all(np.abs(d.qvel[fingers]) < cfg.grip_stall_speed),
+                 min_time=0.15)  # fmt: skip
+        run.hold(qa[-1], 0.1)
+        grip_width = 2 * d.qpos[scene.robot_qpos[14 + arms]]
+        pads0 = run.pad_contacts()
+        T_tcp0, T_part0 = scene.tcp_poses(), scene.part_poses()
+        rel0 = {a: np.linalg.inv(T_part0[part[a]]) @ T_tcp0[a] for a in arms}
+        # follow the plan
+        run.phase = 4
+        n_before = len(run.rec["time"])
+        run.path(np.concatenate([qa[-1:], qv]), sample=True)
+        n_motion = (n_before, len(run.rec["time"]))
+        T_end_motion = scene.part_poses()
+        # release, retreat, settle
+        run.phase = 5
+        run.grip[arms] = HOME_Q[14 + arms]
+        run.hold(qv[-1], cfg.settle_time)
+        run.phase = 6
+        q_ret = qv[-1].copy()
+        scratch = mujoco.MjData(m)
+        for a in arms:
+            T = scene.tcp_poses()[a]
+            T[:3, 3] -= cfg.retreat_distance * T[:3, 2]
+            scratch.qpos[:] = d.qpos
+            q_ret, _, _ = tcp_ik(m, scratch, scene.robot_qpos, scene.robot_dof, scene.tcp_sites[a], a, q_ret, T)
+        run.move(qv[-1], q_ret)
+        run.phase = 7
+        run.hold(q_ret, cfg.settle_time)
+        run.record()
+    finally:
+        run.close()
+        if pbar is not None:
+            pbar.close()
+    wall = time.perf_counter() - wall0 - setup_s
+
+    # ---------------- Grasp
+    rec_parts = np.stack(run.rec["parts"])
+    rec_tcp = np.stack(run.rec["tcp"])
+    rec_pads = np.stack(run.rec["pads"])
+    slip_p, slip_r, held = {}, {}, {}
+    lo, hi = n_motion
+    for a in arms:
+        sp = sr = 0.0
+        for i in range(lo, hi):
+            rel = np.linalg.inv(_mat(rec_parts[i, part[a]])) @ _mat(rec_tcp[i, a])
+            e_p, e_r = _pose_err(rel0[a], rel)
+            sp, sr = max(sp, e_p), max(sr, e_r)
+        slip_p[a], slip_r[a] = sp, sr
+        held[a] = float(np.mean(rec_pads[lo:hi, a].all(-1))) if hi > lo else 0.0
+    touching = {a: bool(pads0[a].all()) for a in arms}
+    why = []
+    for a in arms:
+        name = ("right", "left")[a]
+        if not touching[a]:
+            which = [f for f, t in zip(("finger_r", "finger_l"), pads0[a]) if not t]
+            why.append(f"{name} gripper: {', '.join(which)} not touching part {part[a]} when the motion starts "
+                       f"(jaw {1000 * grip_width[list(arms).index(a)]:.1f} mm)")  # fmt: skip
+        elif slip_p[a] > sc.slip_position or slip_r[a] > np.deg2rad(sc.slip_rotation_deg):
+            why.append(f"{name} gripper: part {part[a]} slipped {1000 * slip_p[a]:.1f} mm / "
+                       f"{np.rad2deg(slip_r[a]):.1f}° (limits {1000 * sc.slip_position:.0f} mm / {sc.slip_rotation_deg:.0f}°)")  # fmt: skip
+    if disturbed > cfg.disturbance_tolerance:
+        why.insert(0, f"object disturbed by {1000 * disturbed:.1f} mm before the grasp (transit/approach contact)")
+    stages["grasp"] = not why
+    reasons["grasp"] = "; ".join(why) if why else (
+        "both pads on the intended part(s); max slip " +
+        ", ".join(f"{1000 * slip_p[a]:.1f} mm/{np.rad2deg(slip_r[a]):.1f}°" for a in arms))  # fmt: skip
+
+    # ---------------- Exec
+    T_fin = np.stack([_mat(x) for x in rec_parts[-1]])
+    T_demo = np.stack([[_mat(x) for x in row] for row in obj.T_obj_part_demo])  # (T, P, 4, 4)
+    root_rel = lambda Ts: np.linalg.inv(Ts[0])[None] @ Ts  # noqa: E731
+    fin_rel = root_rel(T_fin)
+    final_err = [_pose_err(fin_rel[k], T_demo[-1, k]) for k in range(P)]
+    def _moves(k: int) -> bool:
+        errs = [_pose_err(T_demo[0, k], T_demo[t, k]) for t in range(len(T_demo))]
+        return max(e[0] for e in errs) > sc.moving_threshold or max(e[1] for e in errs) > np.deg2rad(3.0)
+
+    moved = [k for k in range(1, P) if _moves(k)]
+    samples = run.samples[1:]  # the first sample is the grasp pose before frame 0
+    path_err = {}
+    for k in moved:
+        errs = [_pose_err(root_rel(S)[k], T_demo[t, k]) for t, S in enumerate(samples[: len(T_demo)])]
+        path_err[k] = (max(e[0] for e in errs), max(e[1] for e in errs)) if errs else (np.inf, np.inf)
+    why = []
+    for k in range(1, P):
+        e_p, e_r = final_err[k]
+        if e_p > sc.final_position or e_r > np.deg2rad(sc.final_rotation_deg):
+            why.append(f"part {k} ends {1000 * e_p:.1f} mm / {np.rad2deg(e_r):.1f}° from the demo's final pose")
+    for k, (e_p, e_r) in path_err.items():
+        if e_p > sc.path_position or e_r > np.deg2rad(sc.path_rotation_deg):
+            why.append(f"part {k} strays {1000 * e_p:.1f} mm / {np.rad2deg(e_r):.1f}° from the demo's path")
+    stages["exec"] = not why
+    reasons["exec"] = "; ".join(why) if why else "every part within tolerance of the demo's final pose and path"
+
+    T0 = np.stack([_mat(x) for x in rec_parts[0]])
+    base_p, base_r = _pose_err(T0[0], T_fin[0])
+    sim_t = float(d.time)
+    metrics.update({
+        "grasp": {"pads_touching": {("right", "left")[a]: pads0[a].tolist() for a in arms},
+                  "jaw_mm": {("right", "left")[a]: round(1000 * float(w), 2) for a, w in zip(arms, grip_width)},
+                  "slip_mm": {("right", "left")[a]: round(1000 * slip_p[a], 2) for a in arms},
+                  "slip_deg": {("right", "left")[a]: round(float(np.rad2deg(slip_r[a])), 2) for a in arms},
+                  "held_fraction": {("right", "left")[a]: round(held[a], 3) for a in arms},
+                  "disturbance_mm": round(1000 * disturbed, 2)},
+        "exec": {"final_error_mm": [round(1000 * e[0], 2) for e in final_err],
+                 "final_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in final_err],
+                 "moving_parts": moved,
+                 "path_error_mm": {str(k): round(1000 * v[0], 2) for k, v in path_err.items()},
+                 "path_error_deg": {str(k): round(float(np.rad2deg(v[1])), 2) for k, v in path_err.items()},
+                 "end_of_motion_error_mm": [round(1000 * _pose_err(root_rel(T_end_motion)[k], T_demo[-1, k])[0], 2) for k in range(P)],
+                 "end_of_motion_error_deg": [round(float(np.rad2deg(_pose_err(root_rel(T_end_motion)[k], T_demo[-1, k])[1])), 2) for k in range(P)]},
+        "base_displacement_mm": round(1000 * base_p, 2),
+        "base_rotation_deg": round(float(np.rad2deg(base_r)), 2),
+        "root": cfg.root,
+        "sim_time_s": round(sim_t, 3), "wall_time_s": round(wall, 3), "setup_s": round(setup_s, 3),
+        "realtime_factor": round(sim_t / max(wall, 1e-9), 2), "steps": int(round(sim_t / m.opt.timestep)),
+    })  # fmt: skip
+    return _finish(stages, reasons, metrics, True, run, P, len(run.oq))
