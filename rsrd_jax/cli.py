@@ -247,6 +247,41 @@ def cmd_plan(a: argparse.Namespace) -> int:
     return 0 if plan.success else 1
 
 
+def cmd_simulate(a: argparse.Namespace) -> int:
+    """Executes a RobotPlan in MuJoCo with the studio object and writes sim.json (+ mp4, rrd)."""
+    from .io import ArtefactError, load_plan
+    from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan
+
+    out = Path(a.out)
+    if (out / "sim.json").exists() and not a.overwrite:
+        print(f"error: {out / 'sim.json'} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    try:
+        plan = load_plan(a.plan)
+        cfg = SimConfig(root=a.root, start=a.start, joint_speed=a.joint_speed)
+        t0 = time.perf_counter()
+        res = simulate_plan(plan, a.studio, cfg, video=a.video, progress=not a.quiet)
+        paths = save_sim_result(res, out, fps=cfg.fps)
+        if a.rerun and res.executed:
+            paths["rrd"] = log_sim_rerun(res, a.studio, out / "sim.rrd", cfg)
+    except (ArtefactError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"simulate: {res.outcome_name} in {time.perf_counter() - t0:.1f} s -> {paths['json']}")
+    for stage in ("traj", "grasp", "exec"):
+        ok = res.stages[stage]
+        mark = "not evaluated" if ok is None else ("ok" if ok else "FAILED")
+        print(f"  {stage:5s} {mark}: {res.reasons.get(stage, '')}")
+    if res.executed:
+        mt = res.metrics
+        print(f"  {mt['sim_time_s']:.1f} s simulated, {mt['realtime_factor']:.1f}x real time; "
+              f"object base moved {mt['base_displacement_mm']:.1f} mm")  # fmt: skip
+    for k in ("mp4", "rrd"):
+        if k in paths:
+            print(f"  {k}: {paths[k]}")
+    return 0 if res.success else 1
+
+
 def cmd_bench(a: argparse.Namespace) -> int:
     root = Path(__file__).resolve().parent.parent
     if not (root / "benchmarks" / "run.py").is_file():
@@ -350,6 +385,22 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")
     pl.set_defaults(func=cmd_plan)
+
+    sm = sub.add_parser("simulate", help="execute a RobotPlan in MuJoCo with the studio object; success per stage")
+    sm.add_argument("plan", help="RobotPlan directory (plan.npz + plan.json, from `rsrd-jax plan`)")
+    sm.add_argument("--studio", required=True, metavar="DIR",
+                    help="studio object directory (object.json, robot_view/gt.json, demo/gt/part_poses.npz)")  # fmt: skip
+    sm.add_argument("--out", required=True, help="output directory (sim.json, sim.npz, sim.mp4, sim.rrd)")
+    sm.add_argument("--video", action="store_true", help="record the robot-view camera into sim.mp4")
+    sm.add_argument("--rerun", action="store_true", help="write sim.rrd (robot + object over time)")
+    sm.add_argument("--root", choices=("free", "weld"), default="free",
+                    help="object root resting free on the table (default) or welded to it")  # fmt: skip
+    sm.add_argument("--start", choices=("pregrasp", "home"), default="pregrasp",
+                    help="start at the plan's pre-grasp (default) or at home with an unplanned transit")  # fmt: skip
+    sm.add_argument("--joint-speed", type=float, default=0.8, help="largest commanded arm joint speed (rad/s)")
+    sm.add_argument("--quiet", action="store_true", help="no progress bar")
+    sm.add_argument("--overwrite", action="store_true", help="replace an existing sim.json")
+    sm.set_defaults(func=cmd_simulate)
 
     bn = sub.add_parser("bench", help="run the benchmark suite (source checkout): args go to benchmarks.run")
     bn.add_argument("args", nargs=argparse.REMAINDER)
