@@ -15,6 +15,9 @@ class SuccessConfig(eqx.Module):
     the start of the motion and any later step while held."""
     slip_rotation_deg: float = 20.0
     """Grasp: largest allowed change (degrees) of the grasped part's orientation in the TCP frame."""
+    min_jaw: float = 0.001
+    """Grasp: the jaw must stay at least this open (m) on the part; a shut jaw whose fingertips
+    press on a surface is not a pinch."""
     final_position: float = 0.015
     """Exec: largest allowed distance (m) between every part's final origin (root frame) and the
     demonstration's final one."""

@@ -431,14 +431,17 @@ def simulate_plan(
             sp, sr = max(sp, e_p), max(sr, e_r)
         slip_p[a], slip_r[a] = sp, sr
         held[a] = float(np.mean(rec_pads[lo:hi, a].all(-1))) if hi > lo else 0.0
-    touching = {a: bool(pads0[a].all()) for a in arms}
+    # both pads on the part with the jaw open: a pinch (closed fingers pressing on a surface
+    # with their tips would touch it with both pads too)
+    jaw = {a: float(w) for a, w in zip(arms, grip_width)}
+    touching = {a: bool(pads0[a].all()) and jaw[a] >= sc.min_jaw for a in arms}
     why = []
     for a in arms:
         name = ("right", "left")[a]
         if not touching[a]:
             which = [f for f, t in zip(("finger_r", "finger_l"), pads0[a]) if not t]
-            why.append(f"{name} gripper: {', '.join(which)} not touching part {part[a]} when the motion starts "
-                       f"(jaw {1000 * grip_width[list(arms).index(a)]:.1f} mm)")  # fmt: skip
+            what = f"{', '.join(which)} not touching part {part[a]}" if which else f"jaw shut on part {part[a]}"
+            why.append(f"{name} gripper: {what} when the motion starts (jaw {1000 * jaw[a]:.1f} mm)")
         elif slip_p[a] > sc.slip_position or slip_r[a] > np.deg2rad(sc.slip_rotation_deg):
             why.append(f"{name} gripper: part {part[a]} slipped {1000 * slip_p[a]:.1f} mm / "
                        f"{np.rad2deg(slip_r[a]):.1f}° (limits {1000 * sc.slip_position:.0f} mm / {sc.slip_rotation_deg:.0f}°)")  # fmt: skip
@@ -457,7 +460,7 @@ def simulate_plan(
     final_err = [_pose_err(fin_rel[k], T_demo[-1, k]) for k in range(P)]
     def _moves(k: int) -> bool:
         errs = [_pose_err(T_demo[0, k], T_demo[t, k]) for t in range(len(T_demo))]
-        return max(e[0] for e in errs) > sc.moving_threshold or max(e[1] for e in errs) > np.deg2rad(3.0)
+        return bool(max(e[0] for e in errs) > sc.moving_threshold or max(e[1] for e in errs) > np.deg2rad(3.0))
 
     moved = [k for k in range(1, P) if _moves(k)]
     samples = run.samples[1:]  # the first sample is the grasp pose before frame 0

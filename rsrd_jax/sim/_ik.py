@@ -17,8 +17,8 @@ def tcp_ik(
     data: mujoco.MjData,
     qpos_adr: np.ndarray,
     dof_adr: np.ndarray,
-    site: int,
-    arm: int,
+    site: int | np.integer,
+    arm: int | np.integer,
     q0: np.ndarray,
     T_target: np.ndarray,
     iterations: int = 100,
@@ -38,6 +38,7 @@ def tcp_ik(
     Returns:
         (q (16,), position error (m), rotation error (rad)).
     """
+    site, arm = int(site), int(arm)
     sl = slice(7 * arm, 7 * arm + 7)
     q = np.asarray(q0, float).copy()
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))

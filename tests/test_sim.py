@@ -1,0 +1,169 @@
+"""Simulated execution: a ground-truth plan succeeds by physics, wrong grasps fail at the Grasp
+stage, failed/colliding plans are reported and not executed, bad inputs give clear errors."""
+
+import dataclasses
+import json
+import shutil
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from rsrd_jax.io import ArtefactError, load_plan, save_plan
+from rsrd_jax.robot import HOME_Q, load_yumi, servo_ctrl, tcp_poses
+from rsrd_jax.sim import (
+    SimConfig,
+    SimOutcome,
+    build_sim_scene,
+    load_sim_object,
+    oracle_plan,
+    simulate_plan,
+    tcp_ik,
+    with_init,
+)
+from rsrd_jax.studio import StudioConfig, get_object, make_object
+
+SMALL = StudioConfig(scan_views=1, demo_frames=12, scan_size=(32, 24), demo_size=(32, 24), robot_size=(32, 24))
+
+
+@pytest.fixture(scope="module")
+def stapler(tmp_path_factory):
+    """The studio stapler (arm hinged on a base; the demo folds the arm closed by 0.5 rad)."""
+    out = tmp_path_factory.mktemp("sim") / "stapler"
+    make_object("stapler", out, SMALL)
+    return out
+
+
+@pytest.fixture(scope="module")
+def gt_plan(stapler):
+    """Ground-truth plan: the demo's own contact on the arm, followed by per-frame IK with the
+    object at its true pose."""
+    plan = oracle_plan(load_sim_object(stapler))
+    assert plan.success, plan.message
+    return plan
+
+
+@pytest.fixture(scope="module")
+def gt_result(stapler, gt_plan):
+    return simulate_plan(gt_plan, stapler, progress=False)
+
+
+def test_ground_truth_plan_succeeds_by_physics(stapler, gt_result):
+    r = gt_result
+    assert r.success and r.outcome == SimOutcome.success, r.reasons
+    assert r.stages == {"init": None, "traj": True, "grasp": True, "exec": True}
+    # nothing holds the part but friction: the only equality constraints are the finger couplings
+    sc = build_sim_scene(load_sim_object(stapler))
+    assert sc.model.neq == 2 and np.all(sc.model.eq_type == mujoco.mjtEq.mjEQ_JOINT)
+    assert sc.model.jnt_type[sc.object_joints[0]] == mujoco.mjtJoint.mjJNT_FREE  # root rests freely
+    # independent reference: the catalogue's scripted hinge angle at the demo's start and end vs
+    # MuJoCo's recorded hinge qpos (after the free root's 7 entries)
+    keys = get_object("stapler").joint_values
+    hinge = r.object_qpos[:, 7]
+    assert hinge[0] == pytest.approx(float(keys(0.0)[1][0]), abs=0.02)
+    assert hinge[-1] == pytest.approx(float(keys(1.0)[1][0]), abs=np.deg2rad(8))
+    # the gripper closed on the 30 mm arm and held it (both pads in contact through the motion)
+    g = r.metrics["grasp"]
+    assert g["jaw_mm"]["right"] == pytest.approx(30.0, abs=3.0)
+    assert g["held_fraction"]["right"] > 0.95
+    motion = r.phase == 4
+    assert r.pad_contact[motion, 0].all()
+    assert r.metrics["base_displacement_mm"] < 10.0  # the base rested on the table
+    assert r.metrics["realtime_factor"] > 1.0
+
+
+def test_welded_root_does_not_move(stapler, gt_plan):
+    r = simulate_plan(gt_plan, stapler, SimConfig(root="weld"), progress=False)
+    assert r.success, r.reasons
+    assert r.metrics["base_displacement_mm"] == 0.0 and r.object_qpos.shape[1] == 1
+
+
+def test_grasp_into_air_fails_at_grasp_stage(stapler):
+    obj = load_sim_object(stapler)
+    plan = oracle_plan(obj, grasp_offset=np.array([0.0, 0.0, 0.06]))  # 6 cm above the arm
+    assert plan.success
+    r = simulate_plan(plan, obj, progress=False)
+    assert r.outcome == SimOutcome.grasp and r.stages["grasp"] is False and r.executed
+    assert "not touching part 1" in r.reasons["grasp"]
+    assert r.metrics["grasp"]["jaw_mm"]["right"] < 1.0  # closed on nothing
+    assert r.robot_q[r.phase == 4, 14].max() < 5e-4  # the jaw stayed shut: nothing between the fingers
+
+
+def test_wrong_part_fails_at_grasp_stage(stapler, gt_plan):
+    """Grasp the arm but claim the base: contacts are with the wrong part."""
+    plan = dataclasses.replace(gt_plan, part=np.array([0, -1]))
+    r = simulate_plan(plan, stapler, progress=False)
+    assert r.outcome == SimOutcome.grasp and "not touching part 0" in r.reasons["grasp"]
+
+
+def test_failed_or_colliding_plan_is_reported_not_executed(stapler, gt_plan):
+    failed = dataclasses.replace(gt_plan, result="collision", message="every candidate collided")
+    r = simulate_plan(failed, stapler, progress=False)
+    assert r.outcome == SimOutcome.traj and not r.executed and len(r.time) == 0
+    assert "collision" in r.reasons["traj"] and r.stages["grasp"] is None
+    colliding = dataclasses.replace(gt_plan, min_distance=np.array([0.01, -0.004, 0.02]))
+    r = simulate_plan(colliding, stapler, progress=False)
+    assert r.outcome == SimOutcome.traj and not r.executed and "collides" in r.reasons["traj"]
+
+
+def test_init_stage_combines(gt_result):
+    r = with_init(gt_result, False, "translation error 41 mm > 20 mm", translation_mm=41.0)
+    assert r.outcome == SimOutcome.init and r.stages["init"] is False and r.metrics["init"]["translation_mm"] == 41.0
+    assert with_init(gt_result, True, "ok").success
+
+
+def test_bad_inputs_give_clear_errors(stapler, gt_plan, tmp_path):
+    with pytest.raises(ArtefactError, match="another object"):
+        simulate_plan(dataclasses.replace(gt_plan, part=np.array([3, -1])), stapler, progress=False)
+    with pytest.raises(ArtefactError, match="another demo"):
+        simulate_plan(dataclasses.replace(gt_plan, q_video=gt_plan.q_video[:5]), stapler, progress=False)
+    with pytest.raises(ArtefactError, match="not found"):
+        simulate_plan(gt_plan, tmp_path / "nowhere", progress=False)
+    broken = tmp_path / "broken"
+    shutil.copytree(stapler, broken)
+    (broken / "robot_view" / "gt.json").unlink()
+    with pytest.raises(ArtefactError, match="robot_view/gt.json"):
+        load_sim_object(broken)
+    meta = json.loads((stapler / "object.json").read_text())
+    meta["parts"] = meta["parts"][:1]
+    (broken / "robot_view" / "gt.json").write_text((stapler / "robot_view" / "gt.json").read_text())
+    (broken / "object.json").write_text(json.dumps(meta))
+    with pytest.raises(ArtefactError, match="T_obj_part"):
+        load_sim_object(broken)
+
+
+def test_servo_and_ik_match_the_robot_package(stapler):
+    """The scene's vectorised servo law equals rsrd_jax.robot.servo_ctrl, and the MuJoCo IK
+    reaches a pose given by the JAX forward kinematics."""
+    sc = build_sim_scene(load_sim_object(stapler))
+    rng = np.random.default_rng(0)
+    robot = load_yumi()
+    q = HOME_Q + 0.3 * rng.standard_normal(16) * np.r_[np.ones(14), 0, 0]
+    qd = rng.standard_normal(16)
+    sc.servo_ctrl(q, qd)
+    ref = servo_ctrl(robot, q, qd)  # robot-only model: same actuator order and gains
+    np.testing.assert_allclose(sc.data.ctrl[sc.actuators], ref[: len(sc.actuators)], atol=1e-12)
+    T = np.asarray(tcp_poses(robot, jnp.asarray(q, jnp.float32)))[0]  # right TCP, wxyz_xyz
+    from rsrd_jax.sim._scene import _mat
+
+    qs, e_p, e_r = tcp_ik(sc.model, mujoco.MjData(sc.model), sc.robot_qpos, sc.robot_dof, sc.tcp_sites[0], 0, HOME_Q,
+                          _mat(T), iterations=300)  # fmt: skip
+    assert e_p < 1e-3 and e_r < 1e-2
+    T2 = np.asarray(tcp_poses(robot, jnp.asarray(qs, jnp.float32)))[0]
+    assert np.linalg.norm(T2[4:] - T[4:]) < 2e-3
+
+
+def test_cli_simulate_writes_sim_json(stapler, gt_plan, tmp_path):
+    from rsrd_jax.cli import main
+
+    save_plan(gt_plan, tmp_path / "plan")
+    assert load_plan(tmp_path / "plan").success
+    rc = main(["simulate", str(tmp_path / "plan"), "--studio", str(stapler), "--out", str(tmp_path / "sim"), "--quiet"])
+    assert rc == 0
+    js = json.loads((tmp_path / "sim" / "sim.json").read_text())
+    assert js["outcome"] == "success" and js["stages"]["grasp"] is True and js["format"] == "rsrd_jax.sim/1"
+    with np.load(tmp_path / "sim" / "sim.npz") as z:
+        assert z["part_poses"].shape[1:] == (2, 7)
+    rc = main(["simulate", str(tmp_path / "nope"), "--studio", str(stapler), "--out", str(tmp_path / "sim2")])
+    assert rc == 2
