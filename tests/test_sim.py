@@ -167,3 +167,20 @@ def test_cli_simulate_writes_sim_json(stapler, gt_plan, tmp_path):
         assert z["part_poses"].shape[1:] == (2, 7)
     rc = main(["simulate", str(tmp_path / "nope"), "--studio", str(stapler), "--out", str(tmp_path / "sim2")])
     assert rc == 2
+
+
+@pytest.mark.slow
+def test_planner_ground_truth_plan_succeeds_in_sim(stapler, tmp_path):
+    """The planner's plan from the studio's ground-truth trajectory and true object pose (the
+    full search: grasp sampling, LM, collision checks, approach) succeeds in simulation."""
+    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
+
+    inp = studio_plan_inputs(stapler)
+    cfg = PlanConfig(num_keyframes=8, approach_steps=4, chunk_size=64, max_iterations=40, approach_candidates=4,
+                     hand_tolerance=0.01, parts=(1,))  # fmt: skip
+    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands, config=cfg)
+    assert plan.success, plan.message
+    save_plan(plan, tmp_path / "plan")
+    r = simulate_plan(load_plan(tmp_path / "plan"), stapler, progress=False)
+    assert r.success, r.reasons
+    assert r.metrics["base_displacement_mm"] < 10.0

@@ -38,13 +38,14 @@ def oracle_plan(
     grasp_offset: np.ndarray | None = None,
     position_tolerance: float = 0.01,
     rotation_tolerance_deg: float = 10.0,
+    restarts: int = 8,
 ) -> PlanArtefact:
     """A plan that pinches the studio demo's contact points and follows the demonstrated part
     trajectory exactly (per-frame IK, warm-started), with the object at ``T_robot_root``.
 
     Each contact of the catalogue object (one per hand of the demo) goes to the arm on its side
-    (right arm for contacts at y < 0 in the robot frame when there is one contact; contact order
-    right, left for two); of the two equivalent jaw orientations the one nearer the home TCP
+    (one contact: right arm if it is at y < 0 in the robot frame; two: the one at smaller y to
+    the right arm); of the two equivalent jaw orientations the one nearer the home TCP
     orientation is used.
 
     Args:
@@ -54,6 +55,7 @@ def oracle_plan(
         approach_steps: waypoints of the approach, pre-grasp to grasp inclusive.
         grasp_offset: (3,) offset (m, robot frame) added to every TCP target (a deliberately wrong
             grasp for tests); None for none.
+        restarts: IK starts for the first frame (home, then seeded perturbations of it).
 
     Returns:
         A :class:`rsrd_jax.io.PlanArtefact` (``result`` "success" or "unreachable"). Its
@@ -71,13 +73,12 @@ def oracle_plan(
     n = T_op.shape[0]
     off = np.zeros(3) if grasp_offset is None else np.asarray(grasp_offset, float)
     contacts = list(sobj.contacts)
-    arms = []
-    for i, c in enumerate(contacts):
-        if len(contacts) == 2:
-            arms.append(i)
-        else:
-            p = (T_rr @ T_op[0, c.part] @ np.append(c.point, 1.0))[:3]
-            arms.append(0 if p[1] < 0 else 1)
+    # the right arm (y < 0 side of the robot) takes the contact with the smaller y in the robot frame
+    ys = [float((T_rr @ T_op[0, c.part] @ np.append(c.point, 1.0))[1]) for c in contacts]
+    if len(contacts) == 2:
+        arms = [0, 1] if ys[0] <= ys[1] else [1, 0]
+    else:
+        arms = [0 if ys[0] < 0 else 1]
     d.qpos[scene.robot_qpos] = HOME_Q
     mujoco.mj_kinematics(m, d)
     home_R = [d.site_xmat[s].reshape(3, 3).copy() for s in scene.tcp_sites]
@@ -98,7 +99,19 @@ def oracle_plan(
         active[a], part[a], width[a], T_pg[a] = True, c.part, c.width, _vec(G)
         targets = T_rr[None] @ T_op[:, c.part] @ G[None]
         targets[:, :3, 3] += off
-        q = HOME_Q.copy()
+        # first frame: multi-start (home and seeded perturbations of it), keep the best
+        rng = np.random.default_rng(0)
+        best = None
+        for i in range(restarts):
+            q0 = HOME_Q.copy()
+            if i:
+                q0[7 * a : 7 * a + 7] += rng.uniform(-1.0, 1.0, 7)
+            sol = tcp_ik(m, d, scene.robot_qpos, scene.robot_dof, scene.tcp_sites[a], a, q0, targets[0], iterations=300)
+            if best is None or sol[1] + 0.1 * sol[2] < best[1] + 0.1 * best[2]:
+                best = sol
+            if best[1] < 1e-3 and best[2] < 1e-2:
+                break
+        q = best[0]
         pe = re = 0.0
         for t in range(n):
             q, e_p, e_r = tcp_ik(m, d, scene.robot_qpos, scene.robot_dof, scene.tcp_sites[a], a, q, targets[t],
