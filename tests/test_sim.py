@@ -169,6 +169,24 @@ def test_cli_simulate_writes_sim_json(stapler, gt_plan, tmp_path):
     assert rc == 2
 
 
+
+def test_video_and_rerun_outputs(stapler, gt_plan, tmp_path):
+    import cv2
+
+    from rsrd_jax.sim import log_sim_rerun, save_sim_result
+
+    cfg = SimConfig(fps=10.0, video_size=(64, 48))
+    r = simulate_plan(gt_plan, stapler, cfg, video=True, progress=False)
+    assert r.success and r.frames.shape[1:] == (48, 64, 3) and len(r.frames) == len(r.time)
+    assert r.frames.std() > 5  # not a blank image
+    paths = save_sim_result(r, tmp_path, fps=cfg.fps)
+    cap = cv2.VideoCapture(str(paths["mp4"]))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(r.frames)
+    cap.release()
+    rrd = log_sim_rerun(r, stapler, tmp_path / "sim.rrd", cfg)
+    assert rrd.stat().st_size > 10_000
+
+
 @pytest.mark.slow
 def test_planner_ground_truth_plan_succeeds_in_sim(stapler, tmp_path):
     """The planner's plan from the studio's ground-truth trajectory and true object pose (the

@@ -176,10 +176,7 @@ class _Runner:
         self.phase = 0
         self.pbar = pbar
         self.n_steps = 0
-        oj = scene.object_joints
-        self.oq = np.concatenate([np.arange(self.m.jnt_qposadr[j], self.m.jnt_qposadr[j] +
-                                            (7 if self.m.jnt_type[j] == 0 else 1)) for j in oj]) if len(oj) else np.zeros(0, int)  # fmt: skip
-        self.contact_log: list = []
+        self.oq = scene.object_qpos_adr()
         gid2part = np.full(self.m.ngeom, -1)
         for k, g in enumerate(scene.part_geoms):
             gid2part[g] = k
@@ -444,7 +441,8 @@ def simulate_plan(
             why.append(f"{name} gripper: {what} when the motion starts (jaw {1000 * jaw[a]:.1f} mm)")
         elif slip_p[a] > sc.slip_position or slip_r[a] > np.deg2rad(sc.slip_rotation_deg):
             why.append(f"{name} gripper: part {part[a]} slipped {1000 * slip_p[a]:.1f} mm / "
-                       f"{np.rad2deg(slip_r[a]):.1f}° (limits {1000 * sc.slip_position:.0f} mm / {sc.slip_rotation_deg:.0f}°)")  # fmt: skip
+                       f"{np.rad2deg(slip_r[a]):.1f}° (limits {1000 * sc.slip_position:.0f} mm / "
+                       f"{sc.slip_rotation_deg:.0f}°)")  # fmt: skip
     if disturbed > cfg.disturbance_tolerance:
         why.insert(0, f"object disturbed by {1000 * disturbed:.1f} mm before the grasp (transit/approach contact)")
     stages["grasp"] = not why
@@ -479,6 +477,7 @@ def simulate_plan(
     stages["exec"] = not why
     reasons["exec"] = "; ".join(why) if why else "every part within tolerance of the demo's final pose and path"
 
+    end_err = [_pose_err(root_rel(T_end_motion)[k], T_demo[-1, k]) for k in range(P)]
     T0 = np.stack([_mat(x) for x in rec_parts[0]])
     base_p, base_r = _pose_err(T0[0], T_fin[0])
     sim_t = float(d.time)
@@ -494,8 +493,8 @@ def simulate_plan(
                  "moving_parts": moved,
                  "path_error_mm": {str(k): round(1000 * v[0], 2) for k, v in path_err.items()},
                  "path_error_deg": {str(k): round(float(np.rad2deg(v[1])), 2) for k, v in path_err.items()},
-                 "end_of_motion_error_mm": [round(1000 * _pose_err(root_rel(T_end_motion)[k], T_demo[-1, k])[0], 2) for k in range(P)],
-                 "end_of_motion_error_deg": [round(float(np.rad2deg(_pose_err(root_rel(T_end_motion)[k], T_demo[-1, k])[1])), 2) for k in range(P)]},
+                 "end_of_motion_error_mm": [round(1000 * e[0], 2) for e in end_err],
+                 "end_of_motion_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in end_err]},
         "base_displacement_mm": round(1000 * base_p, 2),
         "base_rotation_deg": round(float(np.rad2deg(base_r)), 2),
         "root": cfg.root,

@@ -72,8 +72,7 @@ def log_sim_rerun(
         obj = load_sim_object(obj)
     scene = build_sim_scene(obj, config, T_robot_root)
     m, d = scene.model, scene.data
-    oq = np.concatenate([np.arange(m.jnt_qposadr[j], m.jnt_qposadr[j] + (7 if m.jnt_type[j] == 0 else 1))
-                         for j in scene.object_joints]) if len(scene.object_joints) else np.zeros(0, int)  # fmt: skip
+    oq = scene.object_qpos_adr()
     part_of = {int(g): k for k, gs in enumerate(scene.part_geoms) for g in gs}
     palette = np.array([[230, 80, 60], [60, 120, 230], [80, 190, 90], [230, 180, 40], [170, 90, 200], [60, 200, 200]])
     geoms = []
@@ -95,7 +94,8 @@ def log_sim_rerun(
     for g, color in geoms:
         arch = _geom_archetype(rr, m, g, color)
         if arch is not None:
-            names[g] = f"world/geoms/{mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f'g{g}'}".replace("/obj/", "/obj_")
+            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"g{g}"
+            names[g] = f"world/geoms/{name.replace('/', '_')}"
             rec.log(names[g], arch, static=True)
     for i in range(len(result.time)):
         rec.set_time("sim_time", duration=float(result.time[i]))

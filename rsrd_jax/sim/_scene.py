@@ -145,6 +145,13 @@ class SimScene:
         out[:, :3, 3] = self.data.site_xpos[self.tcp_sites]
         return out
 
+    def object_qpos_adr(self) -> np.ndarray:
+        """qpos addresses of the object's joints (free joints: 7 entries, xyz + wxyz)."""
+        m = self.model
+        adr = [np.arange(m.jnt_qposadr[j], m.jnt_qposadr[j] + (7 if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE else 1))
+               for j in self.object_joints]  # fmt: skip
+        return np.concatenate(adr) if adr else np.zeros(0, int)
+
     def robot_q(self) -> np.ndarray:
         """(16,) current joints in JOINT_NAMES order."""
         return self.data.qpos[self.robot_qpos].copy()
