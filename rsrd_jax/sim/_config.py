@@ -29,6 +29,11 @@ class SuccessConfig(eqx.Module):
     demonstration's pose at the same video frame, over the whole motion."""
     path_rotation_deg: float = 30.0
     """Exec: largest allowed angle (degrees) from the demonstration's pose at the same frame."""
+    base_position: float = 0.05
+    """Exec: largest allowed displacement (m) of the object's root over the execution (a free root
+    may be dragged along; knocking the object away is a failure)."""
+    base_rotation_deg: float = 30.0
+    """Exec: largest allowed rotation (degrees) of the root (e.g. tipped over)."""
     moving_threshold: float = 0.005
     """A part counts as moved by the demo when its origin moves more than this (m) or it turns
     more than 3° away from its first-frame pose at some frame (root frame)."""
@@ -73,6 +78,9 @@ class SimConfig(eqx.Module):
     """Longest time (s) the grippers close before the motion starts anyway."""
     grip_stall_speed: float = 0.002
     """Finger speed (m/s) below which a closing gripper counts as stalled (on the part or empty)."""
+    release_clearance: float = 0.012
+    """On release the jaw opens to its width on the part plus this (m), not fully: fully opened
+    fingers (50 mm) knock neighbouring parts or tip light objects over."""
     retreat_distance: float = 0.08
     """After release, the TCPs back off this far (m) along their approach axis (−gripper z)."""
     disturbance_tolerance: float = 0.01

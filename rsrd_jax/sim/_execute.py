@@ -303,9 +303,10 @@ def simulate_plan(
         object (``disturbance_tolerance``), and while held the part does not slip relative to the
         TCP beyond ``success.slip_position`` / ``slip_rotation_deg``.
       * **Exec**: after release and retreat every part's pose relative to the root matches the
-        demo's final ``T_obj_part`` (``final_position`` / ``final_rotation_deg``), and every part
+        demo's final ``T_obj_part`` (``final_position`` / ``final_rotation_deg``), every part
         the demo moves stayed near the demo's pose at each video frame while the plan was followed
-        (``path_position`` / ``path_rotation_deg``), i.e. it moved the same way.
+        (``path_position`` / ``path_rotation_deg``), i.e. it moved the same way, and the root was
+        not knocked away or over (``base_position`` / ``base_rotation_deg``).
       * **Init** is the caller's (registration); see :func:`with_init`.
 
     Args:
@@ -394,7 +395,7 @@ def simulate_plan(
         T_end_motion = scene.part_poses()
         # release, retreat, settle
         run.phase = 5
-        run.grip[arms] = HOME_Q[14 + arms]
+        run.grip[arms] = np.minimum(HOME_Q[14 + arms], d.qpos[scene.robot_qpos[14 + arms]] + cfg.release_clearance / 2)
         run.hold(qv[-1], cfg.settle_time)
         run.phase = 6
         q_ret = qv[-1].copy()
@@ -474,12 +475,14 @@ def simulate_plan(
     for k, (e_p, e_r) in path_err.items():
         if e_p > sc.path_position or e_r > np.deg2rad(sc.path_rotation_deg):
             why.append(f"part {k} strays {1000 * e_p:.1f} mm / {np.rad2deg(e_r):.1f}° from the demo's path")
-    stages["exec"] = not why
-    reasons["exec"] = "; ".join(why) if why else "every part within tolerance of the demo's final pose and path"
-
-    end_err = [_pose_err(root_rel(T_end_motion)[k], T_demo[-1, k]) for k in range(P)]
     T0 = np.stack([_mat(x) for x in rec_parts[0]])
     base_p, base_r = _pose_err(T0[0], T_fin[0])
+    if base_p > sc.base_position or base_r > np.deg2rad(sc.base_rotation_deg):
+        why.append(f"the object's base moved {1000 * base_p:.1f} mm / turned {np.rad2deg(base_r):.1f}° "
+                   f"(limits {1000 * sc.base_position:.0f} mm / {sc.base_rotation_deg:.0f}°)")  # fmt: skip
+    stages["exec"] = not why
+    reasons["exec"] = "; ".join(why) if why else "every part within tolerance of the demo's final pose and path"
+    end_err = [_pose_err(root_rel(T_end_motion)[k], T_demo[-1, k]) for k in range(P)]
     sim_t = float(d.time)
     metrics.update({
         "grasp": {"pads_touching": {("right", "left")[a]: pads0[a].tolist() for a in arms},
