@@ -58,7 +58,7 @@ class SimConfig(eqx.Module):
     object_friction: float = 1.0
     """Sliding friction of the object's geoms (MuJoCo combines pairs by the maximum; the YuMi's
     finger pads have 1.5, the table 1.0)."""
-    min_root_mass: float = 0.4
+    min_root_mass: float = 0.2
     """With a free root: the root part's density is raised so that it weighs at least this (kg).
     The studio's density (300 kg/m³) makes 10–100 g objects that the friction of their own
     joints drags along the table; real objects (a stapler, a box, a drawer cabinet) are heavier
