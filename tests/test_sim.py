@@ -116,6 +116,8 @@ def test_init_stage_combines(gt_result):
 def test_bad_inputs_give_clear_errors(stapler, gt_plan, tmp_path):
     with pytest.raises(ArtefactError, match="another object"):
         simulate_plan(dataclasses.replace(gt_plan, part=np.array([3, -1])), stapler, progress=False)
+    with pytest.raises(ArtefactError, match="3-part object model"):
+        simulate_plan(dataclasses.replace(gt_plan, info=dict(gt_plan.info, num_parts=3)), stapler, progress=False)
     with pytest.raises(ArtefactError, match="another demo"):
         simulate_plan(dataclasses.replace(gt_plan, q_video=gt_plan.q_video[:5]), stapler, progress=False)
     with pytest.raises(ArtefactError, match="not found"):

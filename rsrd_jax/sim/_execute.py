@@ -141,6 +141,10 @@ def _validate(plan, obj: SimObject) -> None:
     if len(qv) != T:
         raise ArtefactError(f"plan q_video has {len(qv)} frames but the demo of {obj.name!r} "
                             f"({obj.directory}) has {T}: the plan is for another demo")  # fmt: skip
+    n_plan = (getattr(plan, "info", None) or {}).get("num_parts")
+    if n_plan is not None and int(n_plan) != obj.num_parts:
+        raise ArtefactError(f"plan was made for a {n_plan}-part object model but {obj.name!r} has "
+                            f"{obj.num_parts} parts: the plan is for another object model")  # fmt: skip
     active, part = np.asarray(plan.active, bool), np.asarray(plan.part, int)
     if not active.any():
         raise ValueError("plan: no active arm")
