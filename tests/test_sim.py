@@ -111,6 +111,13 @@ def test_init_stage_combines(gt_result):
     r = with_init(gt_result, False, "translation error 41 mm > 20 mm", translation_mm=41.0)
     assert r.outcome == SimOutcome.init and r.stages["init"] is False and r.metrics["init"]["translation_mm"] == 41.0
     assert with_init(gt_result, True, "ok").success
+    from rsrd_jax.sim import stage_summary
+
+    trials = [r, gt_result, with_init(gt_result, True, "ok"), {"stages": {"init": True, "traj": True, "grasp": False}}]
+    t = stage_summary(trials)
+    assert t["trials"] == 4 and t["init"] == {"ok": 3, "of": 4, "rate": 0.75}
+    assert t["traj"]["of"] == 3 and t["grasp"] == {"ok": 2, "of": 3, "rate": 2 / 3}
+    assert t["exec"]["of"] == 2 and t["end_to_end"] == {"ok": 2, "of": 4, "rate": 0.5}
 
 
 def test_bad_inputs_give_clear_errors(stapler, gt_plan, tmp_path):

@@ -10,7 +10,7 @@ sequential and contact-rich. Does not own planning (``plan/``) or registration.
 """
 
 from ._config import SimConfig, SuccessConfig
-from ._execute import PHASES, SIM_FORMAT, STAGE_NAMES, SimOutcome, SimResult, simulate_plan, with_init
+from ._execute import PHASES, SIM_FORMAT, STAGE_NAMES, SimOutcome, SimResult, simulate_plan, stage_summary, with_init
 from ._ik import tcp_ik
 from ._oracle import contact_grasp, oracle_plan
 from ._output import log_sim_rerun, save_sim_result
@@ -19,5 +19,6 @@ from ._scene import OBJECT_PREFIX, PAD_GEOMS, ROBOT_CAMERA, SimObject, SimScene,
 __all__ = [
     "OBJECT_PREFIX", "PAD_GEOMS", "PHASES", "ROBOT_CAMERA", "SIM_FORMAT", "STAGE_NAMES", "SimConfig",
     "SimObject", "SimOutcome", "SimResult", "SimScene", "SuccessConfig", "build_sim_scene", "contact_grasp",
-    "load_sim_object", "log_sim_rerun", "oracle_plan", "save_sim_result", "simulate_plan", "tcp_ik", "with_init",
+    "load_sim_object", "log_sim_rerun", "oracle_plan", "save_sim_result", "simulate_plan", "stage_summary",
+    "tcp_ik", "with_init",
 ]

@@ -120,6 +120,36 @@ def with_init(result: SimResult, ok: bool, reason: str, **metrics) -> SimResult:
     )  # fmt: skip
 
 
+def stage_summary(results) -> dict:
+    """Paper Table 1 counts over trials: each stage's successes out of the trials that reached it.
+
+    Args:
+        results: SimResults or their ``to_json()`` dicts (``sim.json``). A stage that was not
+            evaluated (None; e.g. Init without registration) counts as passed.
+
+    Returns:
+        {"trials": n, "<stage>": {"ok": k, "of": m, "rate": k / m}, ..., "end_to_end": {...}}.
+    """
+    out: dict = {"trials": 0}
+    n = 0
+    for s in STAGE_NAMES:
+        out[s] = {"ok": 0, "of": 0}
+    for r in results:
+        st = r.stages if isinstance(r, SimResult) else r["stages"]
+        n += 1
+        for s in STAGE_NAMES:
+            out[s]["of"] += 1
+            if st.get(s) is False:
+                break
+            out[s]["ok"] += 1
+    out["trials"] = n
+    ok = out[STAGE_NAMES[-1]]["ok"]
+    out["end_to_end"] = {"ok": ok, "of": n}
+    for k in (*STAGE_NAMES, "end_to_end"):
+        out[k]["rate"] = out[k]["ok"] / out[k]["of"] if out[k]["of"] else float("nan")
+    return out
+
+
 def _plan_fields(plan) -> tuple[bool, str, str]:
     name = getattr(plan, "result_name", None) or str(plan.result)
     return bool(plan.success), name, str(getattr(plan, "message", ""))
