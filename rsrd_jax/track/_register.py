@@ -1,0 +1,380 @@
+"""Robot-view registration: the object's pose in the robot base frame from one RGB + metric-depth
+view with known extrinsics (the paper's ZED stereo camera; the studio's `robot_view/`).
+
+It reuses the tracking initialiser's vmapped multi-seed optimisation in its metric-depth mode
+(feature loss + metric depth loss, `track._init`). Metric depth and known extrinsics make the
+seeds better than on a monocular frame: the object is the blob standing above the table plane,
+and the seeds stand the model upright on the table (its +z is "up", as for studio scans and
+gravity-aligned phone scans) at yaws covering 360°.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import equinox as eqx
+import jaxlie
+import jax.numpy as jnp
+import jax
+import numpy as np
+import optax
+
+from ..geometry import Camera, Intrinsics, backproject_depth, project_points
+from ..io import ArtefactError, read_camera_json, read_depth_png, read_image_rgb, read_json, require
+from ._config import InitConfig
+from ._dpm import TrackModel
+from ._dpm import lr_schedule, render_posed
+from ._init import centred
+from ._losses import feature_loss
+from ._observe import Observer, crop, roi_box
+from ..splat import apply_part_poses, choose_config, render, rest_part_poses
+
+
+class RobotView(eqx.Module):
+    """One calibrated RGB-D view of the workspace (host numpy)."""
+
+    rgb: np.ndarray
+    """(H, W, 3) uint8 image."""
+    depth: np.ndarray
+    """(H, W) metric depth along the optical axis (m; 0 = unknown)."""
+    intrinsics: Intrinsics
+    """Camera intrinsics (OpenCV axes, pixel centres at +0.5)."""
+    T_robot_cam: np.ndarray
+    """(7,) wxyz_xyz camera pose in the robot base frame."""
+
+
+def read_robot_view(path: str | Path) -> RobotView:
+    """Reads a robot view directory: `rgb.png`, `depth.png` (16-bit mm) and `camera.json` with
+    `T_robot_cam` (wxyz_xyz), as the studio writes it (or a studio object directory holding
+    `robot_view/`).
+
+    Raises:
+        ArtefactError: naming the missing file or the bad field.
+    """
+    d = Path(path)
+    if (d / "robot_view").is_dir():
+        d = d / "robot_view"
+    if not d.is_dir():
+        raise ArtefactError(f"{d}: robot view directory not found (expected rgb.png, depth.png, camera.json)")
+    for name in ("rgb.png", "depth.png", "camera.json"):
+        if not (d / name).is_file():
+            raise ArtefactError(f"{d / name}: missing (a robot view needs rgb.png, depth.png and camera.json)")
+    K = read_camera_json(d / "camera.json")
+    meta = read_json(d / "camera.json", "camera.json")
+    require("T_robot_cam" in meta, d / "camera.json", "T_robot_cam", "the camera pose in the robot frame (wxyz_xyz)")
+    T = np.asarray(meta["T_robot_cam"], np.float64)
+    require(T.shape == (7,) and np.all(np.isfinite(T)), d / "camera.json", "T_robot_cam", "7 finite numbers (wxyz_xyz)")
+    rgb = read_image_rgb(d / "rgb.png")
+    depth = read_depth_png(d / "depth.png")
+    for name, arr in (("rgb.png", rgb), ("depth.png", depth)):
+        if arr.shape[:2] != (K.height, K.width):
+            raise ArtefactError(f"{d / name}: size {arr.shape[1]}×{arr.shape[0]} differs from camera.json {K.width}×{K.height}")
+    return RobotView(rgb=rgb, depth=depth.astype(np.float32), intrinsics=K, T_robot_cam=T)
+
+
+class Registration(eqx.Module):
+    """Result of `register_object` (host numpy)."""
+
+    T_robot_obj: np.ndarray
+    """(7,) object (model/scan frame) pose in the robot base frame, wxyz_xyz."""
+    T_cam_obj: np.ndarray
+    """(7,) object pose in the camera frame, wxyz_xyz."""
+    loss: float
+    """Final objective (feature + metric depth) of the refined pose."""
+    depth_residual_mm: float
+    """Median |rendered − measured| depth over the object's rendered pixels (mm): a
+    self-check that needs no ground truth."""
+    info: dict = eqx.field(static=True)
+    """Diagnostics: seed losses, chosen seed, matches, distance prior, timings."""
+
+
+def _segment_object(view: RobotView, table_z: float, min_height: float, workspace) -> np.ndarray:
+    """H×W bool mask of the largest connected blob of pixels standing above the table plane
+    (robot frame z > table_z + min_height) inside the workspace box."""
+    K = view.intrinsics
+    pc = np.asarray(backproject_depth(K, jnp.asarray(view.depth)), np.float64).reshape(-1, 3)
+    T = np.asarray(jaxlie.SE3(jnp.asarray(view.T_robot_cam, jnp.float32)).as_matrix(), np.float64)
+    pr = pc @ T[:3, :3].T + T[:3, 3]
+    (x0, x1), (y0, y1), z1 = workspace
+    ok = (view.depth.reshape(-1) > 0) & (pr[:, 2] > table_z + min_height) & (pr[:, 2] < z1)
+    ok &= (pr[:, 0] > x0) & (pr[:, 0] < x1) & (pr[:, 1] > y0) & (pr[:, 1] < y1)
+    mask = ok.reshape(K.height, K.width).astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        raise RegistrationError(
+            "robot view: no object found standing above the table (no depth pixels more than "
+            f"{min_height * 1e3:.0f} mm above z = {table_z} m inside the workspace)"
+        )
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    return lab == k
+
+
+class RegWeights(eqx.Module):
+    """Weights of the registration objective (all terms are means over the ROI grid)."""
+
+    feature: float = 1.0
+    """Feature distance (as in tracking)."""
+    depth: float = 4.0
+    """|rendered − measured| depth where render and measurement both see the object, clipped at
+    `depth_clip`, / clip."""
+    silhouette: float = 4.0
+    """Squared difference of rendered alpha and the above-table blob mask."""
+    below_table: float = 100.0
+    """Mean depth (m) of Gaussian centres below the table plane."""
+    depth_clip: float = 0.05
+    """Clip of the depth residual (m)."""
+
+
+def _reg_objective(tm, T_cam_obj, obs, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
+    r = render_posed(tm, rest_part_poses(tm.part_centroids), T_cam_obj, obs.intrinsics, obs.bg_feature, rcfg)
+    loss = w.feature * feature_loss(r.features, obs.features, obs.weight)
+    # depth only where both the render and the measurement see the object: at the silhouette's
+    # blurred rim the measurement is the table, which the silhouette term already covers
+    m = (r.alpha > 0.5) * (md > 0) * (blob > 0.5)
+    err = jnp.clip(jnp.abs(r.depth - md), 0.0, w.depth_clip) / w.depth_clip
+    loss = loss + w.depth * jnp.sum(m * err) / jnp.maximum(jnp.sum(m), 1.0)
+    loss = loss + w.silhouette * jnp.mean((r.alpha - blob) ** 2)
+    z = (T_robot_cam @ T_cam_obj).apply(r.means)[:, 2]
+    return loss + w.below_table * jnp.mean(jax.nn.relu(table_z - z))
+
+
+@eqx.filter_jit
+def _optimise(tm, T_seeds: jaxlie.SE3, c, obs, lrs, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
+    """Vmapped Adam over seeds on tangent updates about the object centroid `c`."""
+    opt = optax.scale_by_adam()
+
+    def one(T_seed):
+        def loss_fn(d):
+            return _reg_objective(tm, centred(T_seed, d, c), obs, rcfg, md, blob, T_robot_cam, table_z, w)
+
+        def step(carry, lr):
+            d, st = carry
+            loss, g = jax.value_and_grad(loss_fn)(d)
+            g = jnp.where(jnp.isfinite(g), g, 0.0)
+            u, st = opt.update(g, st)
+            return (d - lr * u, st), loss
+
+        d0 = jnp.zeros(6)
+        (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
+        return centred(T_seed, d, c).wxyz_xyz, loss_fn(d)
+
+    return jax.vmap(one)(T_seeds)
+
+
+def icp_refine(
+    T_init: np.ndarray, model_points: np.ndarray, observed: np.ndarray, iters: int = 30, trim_m: float = 0.015
+) -> tuple[np.ndarray, dict]:
+    """Trimmed point-to-point ICP from observed points to the model (host numpy, float64).
+
+    Every observed point lies on a visible model surface, so correspondences go observed → nearest
+    model point (robust to the model's self-occluded far side); pairs farther than `trim_m` are
+    dropped (floaters, the table's rim). Rigid updates by Kabsch.
+
+    Args:
+        T_init: 4×4 initial `T_frame_obj`.
+        model_points: (N, 3) model points (object frame).
+        observed: (M, 3) observed points in the same frame as `T_init` maps into.
+        iters: iterations.
+        trim_m: largest correspondence distance kept (m).
+
+    Returns:
+        (4×4 refined pose, {"rms_mm", "inliers", "iterations"}).
+    """
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(model_points)
+    T = np.array(T_init, np.float64)
+    rms, n_in, it = float("nan"), 0, 0
+    for it in range(1, iters + 1):
+        # observed -> object frame
+        q = (observed - T[:3, 3]) @ T[:3, :3]
+        d, idx = tree.query(q)
+        keep = d < trim_m
+        n_in = int(keep.sum())
+        if n_in < 10:
+            break
+        rms = float(np.sqrt(np.mean(d[keep] ** 2)) * 1e3)
+        A = model_points[idx[keep]]  # object frame
+        B = observed[keep]  # target frame
+        ca, cb = A.mean(0), B.mean(0)
+        U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+        Rn = Vt.T @ D @ U.T
+        Tn = np.eye(4)
+        Tn[:3, :3], Tn[:3, 3] = Rn, cb - Rn @ ca
+        step = np.linalg.norm(Tn[:3, 3] - T[:3, 3])
+        T = Tn
+        if step < 1e-5:
+            break
+    return T, {"rms_mm": rms, "inliers": n_in, "iterations": it}
+
+
+class RegistrationError(ArtefactError):
+    """The robot view does not show an object to register."""
+
+
+def register_object(
+    model,
+    view: RobotView,
+    init: InitConfig = InitConfig(yaw_seeds=16, iters=50, refine_iters=50, lr_start=2e-2, lr_end=2e-3),
+    weights: RegWeights = RegWeights(),
+    roi_size: int = 224,
+    max_gaussians: int = 4000,
+    table_z: float = 0.0,
+    min_height: float = 0.004,
+    workspace: tuple = ((0.1, 0.9), (-0.5, 0.5), 0.5),
+    icp_iters: int = 30,
+    icp_trim_m: float = 0.015,
+    extractor=None,
+    seed: int = 0,
+) -> Registration:
+    """Estimates the object's pose in the robot frame from one calibrated RGB-D view.
+
+    Seeds: the object's pixels are the largest blob standing above the table plane (metric depth
+    + extrinsics); each of `init.yaw_seeds` yaws about the robot's z puts the model upright
+    (object +z = robot +z) with its lowest points on the table and its centroid under the blob's
+    centroid. All seeds are then optimised in parallel (vmapped Adam on feature distance, metric
+    depth, silhouette against the blob and a below-the-table penalty, `RegWeights`) on a crop
+    around the blob; the best is refined on an ROI around it, then by trimmed ICP of the blob's
+    metric points onto the model (feature-grid cells are ≈ 1 cm; ICP is not bound to them).
+
+    Args:
+        model: the `ObjectModel` (rsrd_jax.parts) built from the scan (its +z is up).
+        view: the robot camera's RGB, metric depth, intrinsics and `T_robot_cam`.
+        init: seed count, iterations and learning rates (`yaw_seeds`, `iters`, `refine_iters`,
+            `lr_start`, `lr_end`).
+        weights: weights of the registration objective.
+        roi_size: crop side (pixels) given to the feature extractor.
+        max_gaussians: Gaussians used for rendering.
+        table_z: table top height in the robot frame (m).
+        min_height: pixels higher than this above the table count as object (m).
+        workspace: ((x0, x1), (y0, y1), z_max) box in the robot frame where the object may be.
+        icp_iters: iterations of the final ICP refinement (0: off), see `icp_refine`.
+        icp_trim_m: ICP correspondence trim distance (m).
+        extractor: feature extractor (default rebuilt from the model's backend).
+        seed: Gaussian subsampling seed.
+
+    Returns:
+        `Registration`.
+
+    Raises:
+        ArtefactError: bad depth, extractor/model mismatch, or nothing above the table.
+    """
+    K = view.intrinsics
+    if not np.any(view.depth > 0) or not np.all(np.isfinite(view.depth)):
+        raise ArtefactError("robot view depth: expected finite metric depth with some valid (> 0) pixels")
+    if extractor is None:
+        from ..parts import make_extractor
+
+        extractor = make_extractor(model.feature_backend)
+    if extractor.feature_dim != model.pca.input_dim:
+        raise ArtefactError(
+            f"feature backend mismatch: the extractor gives {extractor.feature_dim}-d features but the "
+            f"model's PCA expects {model.pca.input_dim}-d ({model.feature_backend})"
+        )
+    t0 = time.perf_counter()
+    blob = _segment_object(view, table_z, min_height, workspace)
+    tm = TrackModel.from_object_model(model, max_gaussians, seed)
+    obsr = Observer(extractor, model.pca, K, roi_size)
+    rest = rest_part_poses(tm.part_centroids)
+    posed = apply_part_poses(tm.gaussians, rest, tm.part_centroids)
+    means = np.asarray(posed.means, np.float64)
+    c = means.mean(0)
+    radius = float(np.percentile(np.linalg.norm(means - c, axis=1), 90))
+    T_robot_cam = jaxlie.SE3(jnp.asarray(view.T_robot_cam, jnp.float32))
+    Rrc = np.asarray(T_robot_cam.rotation().as_matrix(), np.float64)
+    # blob centroid on the table, pushed away from the camera by a fraction of the object's radius
+    # (the camera sees only the near side)
+    pc = np.asarray(backproject_depth(K, jnp.asarray(view.depth)), np.float64)[blob]
+    pr = pc @ Rrc.T + np.asarray(T_robot_cam.translation(), np.float64)
+    centre = pr.mean(0)
+    away = centre[:2] - np.asarray(T_robot_cam.translation(), np.float64)[:2]
+    centre_xy = centre[:2] + 0.3 * radius * away / max(np.linalg.norm(away), 1e-6)
+    yaws = np.arange(init.yaw_seeds) * 2 * np.pi / init.yaw_seeds
+    z_floor = float(np.percentile(means[:, 2], 1))
+    seeds = []
+    for yaw in yaws:
+        Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+        rc = Rz @ c
+        t = np.array([centre_xy[0] - rc[0], centre_xy[1] - rc[1], table_z - z_floor])
+        T_ro = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(Rz, jnp.float32)), jnp.asarray(t, jnp.float32))
+        seeds.append((T_robot_cam.inverse() @ T_ro).wxyz_xyz)
+    T_seeds = jaxlie.SE3(jnp.stack(seeds))
+    # crop around the blob, grown so every yaw of the object fits
+    ys, xs = np.nonzero(blob)
+    uv = np.stack([xs + 0.5, ys + 0.5], -1)
+    box = roi_box(uv, K.width, K.height, 0.35)
+    obs = obsr.observe(0, view.rgb, box)
+    g = obs.features.shape[0]
+    md = jnp.asarray(crop(view.depth, box, g, cv2.INTER_NEAREST))
+    cams = [Camera(obs.intrinsics, jaxlie.SE3(T_seeds.wxyz_xyz[i])) for i in range(0, len(yaws), max(1, len(yaws) // 4))]
+    rcfg = choose_config(posed, cams, headroom=1.5)
+    cj = jnp.asarray(c, jnp.float32)
+    blob_g = jnp.asarray(crop(blob.astype(np.float32), box, g, cv2.INTER_AREA))
+    tz = jnp.float32(table_z)
+    Ts, losses = _optimise(tm, T_seeds, cj, obs, lr_schedule(init.lr_start, init.lr_end, init.iters), rcfg, md, blob_g, T_robot_cam, tz, weights)
+    best = int(jnp.argmin(losses))
+    T_best = jaxlie.SE3(Ts[best])
+    # refine on an ROI around the best pose's projection
+    uvb, zb = project_points(K, T_best @ posed.means)
+    box2 = roi_box(np.asarray(uvb)[np.asarray(zb) > 0], K.width, K.height, 0.2)
+    obs2 = obsr.observe(0, view.rgb, box2)
+    md2 = jnp.asarray(crop(view.depth, box2, g, cv2.INTER_NEAREST))
+    rcfg2 = choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5)
+    lrs2 = lr_schedule(init.lr_end, init.lr_end * 0.5, init.refine_iters)
+    blob2 = jnp.asarray(crop(blob.astype(np.float32), box2, g, cv2.INTER_AREA))
+    Ts2, losses2 = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
+    T_cam_obj = jaxlie.SE3(Ts2[0])
+    # metric refinement: ICP of the blob's points (camera frame) onto the model's Gaussian centres
+    icp_info = {}
+    if icp_iters > 0:
+        T_icp, icp_info = icp_refine(np.asarray(T_cam_obj.as_matrix(), np.float64), means, pc, icp_iters, icp_trim_m)
+        T_cam_obj = jaxlie.SE3.from_matrix(jnp.asarray(T_icp, jnp.float32))
+    # self-check without ground truth: rendered vs measured depth over the object's silhouette
+    cam = Camera(K, T_cam_obj)
+    out = render(posed, cam, choose_config(posed, cam, headroom=1.5))
+    a, dr = np.asarray(out.alpha), np.asarray(out.depth)
+    m = (a > 0.5) & (view.depth > 0)
+    resid = float(np.median(np.abs(dr[m] - view.depth[m])) * 1e3) if m.any() else float("inf")
+    T_robot_obj = T_robot_cam @ T_cam_obj
+    info = {
+        "seed_losses": np.asarray(losses).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
+        "refined_loss": float(losses2[0]), "blob_pixels": int(blob.sum()), "silhouette_pixels": int(m.sum()),
+        "icp": icp_info, "time_s": time.perf_counter() - t0,
+    }  # fmt: skip
+    return Registration(
+        T_robot_obj=np.asarray(T_robot_obj.wxyz_xyz, np.float64),
+        T_cam_obj=np.asarray(T_cam_obj.wxyz_xyz, np.float64),
+        loss=float(losses2[0]),
+        depth_residual_mm=resid,
+        info=info,
+    )
+
+
+def registration_error(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> dict:
+    """Pose error of an estimate against ground truth.
+
+    Args:
+        T_est, T_gt: (7,) wxyz_xyz poses of the same frame (e.g. `T_robot_obj`).
+        points: (N, 3) object points (model frame) for the ADD error.
+
+    Returns:
+        {"translation_mm", "rotation_deg", "add_mm"}: displacement of the points' centroid,
+        geodesic rotation error and mean point distance (ADD).
+    """
+    A = jaxlie.SE3(jnp.asarray(T_est, jnp.float32))
+    B = jaxlie.SE3(jnp.asarray(T_gt, jnp.float32))
+    d = B.inverse() @ A
+    rot = float(np.rad2deg(np.linalg.norm(np.asarray(d.rotation().log()))))
+    p = jnp.asarray(points, jnp.float32)
+    add = float(np.mean(np.linalg.norm(np.asarray(_apply(A, p) - _apply(B, p)), axis=1)) * 1e3)
+    c = p.mean(0)
+    trans = float(np.linalg.norm(np.asarray(A @ c - B @ c)) * 1e3)
+    return {"translation_mm": trans, "rotation_deg": rot, "add_mm": add}
+
+
+def _apply(T: jaxlie.SE3, p):
+    return p @ T.rotation().as_matrix().T + T.translation()
