@@ -37,4 +37,14 @@ from ._observe import (
     crop as crop,
     roi_box as roi_box,
 )
+from ._register import (
+    Registration as Registration,
+    RegistrationError as RegistrationError,
+    RegWeights as RegWeights,
+    RobotView as RobotView,
+    icp_refine as icp_refine,
+    read_robot_view as read_robot_view,
+    register_object as register_object,
+    registration_error as registration_error,
+)
 from ._track import track_video as track_video
