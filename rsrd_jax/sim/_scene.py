@@ -207,6 +207,10 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
             spec.add_exclude(bodyname1=f"{OBJECT_PREFIX}part{part.parent}", bodyname2=f"{OBJECT_PREFIX}part{k}")
     spec.worldbody.add_camera(name=ROBOT_CAMERA, pos=list(ROBOT_CAMERA_EYE), fovy=config.video_fovy_deg,
                               xyaxes=_look_at_xyaxes(ROBOT_CAMERA_EYE, ROBOT_CAMERA_TARGET))  # fmt: skip
+    # no multisampling and coarser quadrics: 30 -> 5 ms per 320x240 frame on llvmpipe
+    spec.visual.quality.offsamples = 0
+    spec.visual.quality.numslices = 16
+    spec.visual.quality.numstacks = 8
     spec.visual.global_.offwidth = max(640, int(config.video_size[0]))
     spec.visual.global_.offheight = max(480, int(config.video_size[1]))
     m = spec.compile()
