@@ -95,6 +95,12 @@ def test_wrong_part_fails_at_grasp_stage(stapler, gt_plan):
     plan = dataclasses.replace(gt_plan, part=np.array([0, -1]))
     r = simulate_plan(plan, stapler, progress=False)
     assert r.outcome == SimOutcome.grasp and "not touching part 0" in r.reasons["grasp"]
+    # bimanual bookkeeping: the right arm pinches the arm (part 1), the left (at home) holds nothing
+    both = dataclasses.replace(gt_plan, active=np.array([True, True]), part=np.array([1, 0]))
+    r = simulate_plan(both, stapler, progress=False)
+    assert r.outcome == SimOutcome.grasp
+    assert "left gripper" in r.reasons["grasp"] and "right gripper" not in r.reasons["grasp"]
+    assert r.metrics["grasp"]["pads_touching"] == {"right": [True, True], "left": [False, False]}
 
 
 def test_failed_or_colliding_plan_is_reported_not_executed(stapler, gt_plan):
