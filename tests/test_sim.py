@@ -202,6 +202,24 @@ def test_video_and_rerun_outputs(stapler, gt_plan, tmp_path):
     assert rrd.stat().st_size > 10_000
 
 
+
+def test_friction_holds_the_part_frictionless_pads_slip(tmp_path):
+    """The nerf gun's slide is pulled back 4 cm by a pinch on its sides: with the pads' friction
+    the part follows the gripper; with (nearly) frictionless pads and part it slips out and the
+    Grasp stage fails. (Root welded: the idle arm's home pose touches this long object.)"""
+    make_object("nerf_gun", tmp_path / "gun", SMALL)
+    obj = load_sim_object(tmp_path / "gun")
+    plan = oracle_plan(obj)
+    held = simulate_plan(plan, obj, SimConfig(root="weld"), progress=False)
+    assert held.success, held.reasons
+    assert held.metrics["grasp"]["slip_mm"]["right"] < 3.0
+    slide = held.object_qpos[:, 0]
+    assert slide[-1] == pytest.approx(float(get_object("nerf_gun").joint_values(1.0)[1][0]), abs=0.01)
+    slip = simulate_plan(plan, obj, SimConfig(root="weld", pad_friction=1e-3, object_friction=1e-3), progress=False)
+    assert slip.outcome == SimOutcome.grasp and "slipped" in slip.reasons["grasp"]
+    assert slip.metrics["grasp"]["slip_mm"]["right"] > 15.0
+
+
 @pytest.mark.slow
 def test_planner_ground_truth_plan_succeeds_in_sim(stapler, tmp_path):
     """The planner's plan from the studio's ground-truth trajectory and true object pose (the

@@ -63,6 +63,8 @@ class SimConfig(eqx.Module):
     The studio's density (300 kg/m³) makes 10–100 g objects that the friction of their own
     joints drags along the table; real objects (a stapler, a box, a drawer cabinet) are heavier
     or held down. 0 keeps the studio's mass."""
+    pad_friction: float | None = None
+    """Override of the finger pads' sliding friction (None keeps the MJCF's 1.5; ablations)."""
     object_density: float | None = None
     """Override of the object's density (kg/m³; None keeps the studio's 300)."""
     timestep: float = 0.002

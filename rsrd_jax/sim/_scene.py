@@ -200,6 +200,11 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
             g.friction = [config.object_friction, g.friction[1], g.friction[2]]
             if config.object_density is not None:
                 g.density = config.object_density
+    if config.pad_friction is not None:
+        for pair in PAD_GEOMS:
+            for name in pair:
+                g = spec.geom(name)
+                g.friction = [config.pad_friction, g.friction[1], g.friction[2]]
     # parts touching their parent at the joint do not collide with it (MuJoCo's parent filter
     # does not apply once the root is welded to the world)
     for k, part in enumerate(sobj.parts):
