@@ -138,7 +138,13 @@ def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
     assert plan.success, (plan.message, plan.info)
     assert plan.part.tolist() == [0, -1] and plan.active.tolist() == [True, False]
     # independent check: FK of the returned joints vs T_robot_obj · T_obj_part · T_part_grasp
-    g = _grasps(8, 0).T_part_grasp[plan.grasp_index[0]]
+    # the chosen grasp is the sampled one backed off along its approach axis (seating depth)
+    g0 = jaxlie.SE3(_grasps(8, 0).T_part_grasp[plan.grasp_index[0]])
+    depth = plan.info["chosen"]["grasp_depth"][0]
+    assert depth in CFG.grasp_depths and depth > 0  # palm 4 mm inside the 4 cm cube at depth 0
+    g = g0 @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -depth]))
+    np.testing.assert_allclose(np.asarray(g.wxyz_xyz), plan.T_part_grasp[0], atol=1e-5)
+    g = g.wxyz_xyz
     T_tgt = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[plan.keyframe_indices, 0], jnp.float32)) @ jaxlie.SE3(g)
     tcp = jaxlie.SE3(tcp_poses(robot, jnp.asarray(plan.q_keyframes, jnp.float32))[:, 0])
     err = np.linalg.norm(np.asarray(tcp.translation() - T_tgt.translation()), axis=-1)
@@ -252,3 +258,59 @@ def test_bimanual_plan_couples_both_arms(robot):
     assert plan.min_distance[0] >= 0  # no arm-arm collision
     gap = np.abs(plan.q_approach[-2] - plan.q_approach[-1]).max()
     assert gap < 0.3  # approach stays on the trajectory's null-space branch
+
+
+def test_cli_plan_from_model_and_trajectory_files(tmp_path):
+    """`rsrd-jax plan MODEL TRAJ --object-pose ...` on a one-part cube model and a written
+    trajectory: grasps are sampled on the model's Gaussians, the plan tracks
+    T_robot_obj · T_obj_part · T_part_grasp at every keyframe, and --rerun writes plan.rrd."""
+    from rsrd_jax.cli import main
+    from rsrd_jax.features import fit_pca
+    from rsrd_jax.io import PartTrajectory, save_trajectory
+    from rsrd_jax.parts import FeatureDecoder, ObjectModel, save_object_model
+    from rsrd_jax.splat import Gaussians
+
+    rng = np.random.default_rng(0)
+    centre = np.array([0.0, 0.0, 0.12])
+    pts = _cube(0.02, 12) + centre
+    n = len(pts)
+    g = Gaussians.create(pts, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.002)), np.zeros(n),
+                         rng.uniform(size=(n, 3)), rng.normal(size=(n, 4)), np.zeros(n, int))  # fmt: skip
+    model = ObjectModel(
+        gaussians=g, decoder=FeatureDecoder.create(4, 3, 8, 2, jax.random.key(0)),
+        pca=fit_pca(rng.normal(size=(50, 6)).astype(np.float32), dim=3),
+        part_centroids=jnp.asarray(centre[None], jnp.float32), arap_pairs=jnp.zeros((0, 2), jnp.int32),
+        feature_backend={"name": "none"}, part_names=("cube",), meta={},
+    )  # fmt: skip
+    save_object_model(model, tmp_path / "model")
+    traj = _trajectory()
+    T = len(traj)
+    save_trajectory(PartTrajectory(
+        T_obj_part=traj, T_cam_obj=np.tile([1.0, 0, 0, 0, 0, 0, 0.5], (T, 1)), T_cam_world_part=traj.copy(),
+        residual=np.zeros((T, 1)), visible=np.ones((T, 1)), loss=np.zeros(T), meta={},
+    ), tmp_path / "traj")  # fmt: skip
+    out = tmp_path / "plan"
+    rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
+               "--out", str(out), "--keyframes", "4", "--chunk", "64", "--max-iterations", "40", "--hands", "none",
+               "--rerun"])  # fmt: skip
+    plan = load_plan(out)
+    assert rc == 0 and plan.success, plan.info
+    k = int(plan.part[plan.active][0])
+    assert k == 0
+    a = int(np.nonzero(plan.active)[0][0])
+    T_tgt = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[plan.keyframe_indices, 0], jnp.float32)) \
+        @ jaxlie.SE3(jnp.asarray(plan.T_part_grasp[a], jnp.float32))  # fmt: skip
+    tcp = jaxlie.SE3(tcp_poses(load_yumi(), jnp.asarray(plan.q_keyframes, jnp.float32))[:, a])
+    assert float(jnp.linalg.norm(tcp.translation() - T_tgt.translation(), axis=-1).max()) < 0.01
+    # the grasp holds the cube: its centre lies within the jaw (≤ 2 cm + 5 mm shift from the TCP)
+    assert np.linalg.norm(plan.T_part_grasp[a, 4:]) < 0.03
+    rrd = out / "plan.rrd"
+    assert rrd.is_file() and rrd.stat().st_size > 10_000
+    # an inconsistent trajectory (2 parts for a 1-part model) is refused with a message
+    save_trajectory(PartTrajectory(
+        T_obj_part=np.concatenate([traj, traj], 1), T_cam_obj=np.tile([1.0, 0, 0, 0, 0, 0, 0.5], (T, 1)),
+        T_cam_world_part=np.concatenate([traj, traj], 1), residual=np.zeros((T, 2)), visible=np.ones((T, 2)),
+        loss=np.zeros(T), meta={},
+    ), tmp_path / "traj2")  # fmt: skip
+    assert main(["plan", str(tmp_path / "model"), str(tmp_path / "traj2"), "--object-pose", *map(str, T_ROBOT_OBJ),
+                 "--out", str(tmp_path / "plan2")]) == 2  # fmt: skip

@@ -55,6 +55,8 @@ from ._search import (
     plan_robot,
     resample_keyframes,
 )
+from ._proxy import PartSDF, RobotProxy, part_sdf, robot_proxy, sdf_distance
+from ._rerun import log_plan
 from ._studio import StudioPlanInputs, read_robot_object_pose, studio_plan_inputs
 
 __all__ += [
@@ -64,17 +66,23 @@ __all__ += [
     "CostParams",
     "CostWeights",
     "PlanConfig",
+    "PartSDF",
     "PlanResult",
     "PoseData",
     "RobotPlan",
+    "RobotProxy",
     "StudioPlanInputs",
     "grasp_targets",
     "keyframe_indices",
+    "log_plan",
     "object_geometry",
+    "part_sdf",
     "plan_robot",
     "problem_data",
     "read_robot_object_pose",
     "resample_keyframes",
+    "robot_proxy",
+    "sdf_distance",
     "strip_robot",
     "studio_plan_inputs",
     "tcp_errors",

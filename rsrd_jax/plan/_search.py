@@ -21,6 +21,16 @@ from jaxtyping import Array, Float
 from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, sample_antipodal_grasps
 from ..hands import RankConfig, rank_parts
 from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
+from ._proxy import (
+    PartSDF,
+    RobotProxy,
+    hand_clearance,
+    hand_geometry,
+    hand_part_mask,
+    part_sdf,
+    proxy_distances,
+    robot_proxy,
+)
 from ._costs import (
     CollisionData,
     CostParams,
@@ -36,8 +46,9 @@ from ._lm import LMResult, SolverConfig, TerminationConfig, TrustRegionConfig, s
 ARM_NAMES = ("right", "left")
 """Arm index 0 = right (joints 0..6, gripper 14), 1 = left (7..13, 15)."""
 
-STAGES = ("grasp_invalid", "solver", "pose_error", "joint_limits", "collision", "approach")
-"""Rejection stages, in the order they are applied."""
+STAGES = ("grasp_invalid", "grasp_collision", "solver", "pose_error", "joint_limits", "collision", "approach")
+"""Rejection stages, in the order they are applied (``grasp_collision``: the free-floating
+gripper at the grasp poses along the trajectory hits the table or a part at every seating depth)."""
 
 
 class PlanResult(eqx.Enumeration):
@@ -77,8 +88,9 @@ class PlanConfig(eqx.Module):
     """LM iterations per solve."""
     lambda_initial: float = 0.1
     """Initial LM damping (RSRD 0.1)."""
-    chunk_size: int = 480
-    """Candidates per vmapped solve (chunks are padded to this size)."""
+    chunk_size: int = 160
+    """Candidates per vmapped solve (chunks are padded to this size, so each size compiles once;
+    grasps rejected before solving are left out, so smaller chunks waste less padding)."""
     position_tolerance: float = 0.01
     """Maximum TCP position error at every keyframe (m)."""
     rotation_tolerance_deg: float = 10.0
@@ -87,14 +99,22 @@ class PlanConfig(eqx.Module):
     """Allowed joint-limit violation (rad or m)."""
     collision_margin: float = 0.0
     """A distance below this (m) is a collision (self, table, object)."""
-    object_pad: float = 0.0
-    """Padding of the object boxes built from part points (m)."""
     hand_tolerance: float = 0.0
-    """Penetration (m) allowed between the gripper (base + fingers) and other parts' box proxies
-    (the proxies and the 4 cm gripper-base sphere over-cover; 0 = strict). The reported object
-    distance includes this allowance."""
-    object_boxes_per_part: int = 8
-    """Boxes per part in the object's collision proxy (k-means clusters of its points)."""
+    """Penetration (m) allowed between the gripper (palm + finger pads) and the parts it must not
+    touch (0 = strict). The reported object distance includes this allowance."""
+    check_palm_on_grasped_part: bool = True
+    """Also check the palm (gripper base) against the grasped part itself (the finger pads may
+    touch it); off = the whole gripper may touch its part, as RSRD's filter."""
+    sdf_spacing: float = 0.004
+    """Node spacing of the parts' signed-distance grids (m), see :func:`part_sdf`."""
+    object_radius: float | None = None
+    """Ball radius around each part point in the object proxy (m); None = from the point spacing."""
+    sample_spacing: float = 0.01
+    """Largest spacing of the samples along each robot capsule's axis in the object check (m)."""
+    grasp_depths: tuple[float, ...] = (0.0, 0.004, 0.008, 0.012)
+    """Seating: each grasp is backed off along its approach axis by the smallest of these depths
+    (m) at which the free-floating gripper clears the table and the parts at every keyframe (the
+    pads reach 20 mm past the TCP, so the contact stays on the pad)."""
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
     approach_steps: int = 6
@@ -218,19 +238,30 @@ def _solve(params: CostParams, x0, pose: PoseData, config: SolverConfig, acceler
     return fn(params, x0, pose, config)
 
 
+class _Collide(eqx.Module):
+    """What the candidate check collides with: the robot proxy and the parts' distance grids."""
+
+    proxy: RobotProxy
+    sdf: PartSDF
+
+
 @eqx.filter_jit
-def _evaluate(robot, obj, q, target, active, T_world_part, hand_part_mask, hand_tolerance):
-    """Per candidate: max pos/rot error of active arms, max limit violation, min distances."""
+def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand_tolerance, grip):
+    """Per candidate: max pos/rot error of active arms, max limit violation, min distances
+    (self, table, object) with the grippers at ``grip`` (n, 2) opening per finger (m)."""
     pos, rot = tcp_errors(robot, q, target)  # (n, K, 2)
     pos = jnp.max(jnp.where(active > 0, pos, 0.0), axis=1)
     rot = jnp.max(jnp.where(active > 0, rot, 0.0), axis=1)
     viol = jnp.max(jnp.maximum(q - robot.upper, robot.lower - q), axis=(1, 2))
-    res = collision_distances(robot, q, obj, T_world_part[None], margin=0.0, check_finite=False)
-    # hand capsules get ``hand_tolerance`` (m) of allowed penetration into other parts' proxies
-    hand = robot.geom.hand_mask[:, None]
-    d_obj = jnp.where(hand_part_mask, res.object_distance + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
+    qe = q.at[..., 14].set(grip[:, None, 0]).at[..., 15].set(grip[:, None, 1])
+    res = collision_distances(robot, qe, None, None, margin=0.0, check_finite=False)
+    d_table, d_obj = jax.vmap(jax.vmap(lambda x, T: proxy_distances(robot, coll.proxy, coll.sdf, x, T),
+                                       in_axes=(0, 0)), in_axes=(0, None))(qe, T_world_part)  # (n,K,caps[,P])
+    # the gripper (palm + pads) gets ``hand_tolerance`` (m) of allowed penetration into parts
+    hand = (coll.proxy.kind >= 1)[:, None]
+    d_obj = jnp.where(mask, d_obj + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
     min_obj = jnp.min(d_obj, axis=(-2, -1))
-    mins = jnp.stack([jnp.min(res.min_self, axis=1), jnp.min(res.min_table, axis=1), jnp.min(min_obj, axis=1)], -1)
+    mins = jnp.stack([jnp.min(res.min_self, axis=1), jnp.min(d_table, axis=(1, 2)), jnp.min(min_obj, axis=1)], -1)
     return pos, rot, viol, mins
 
 
@@ -246,11 +277,12 @@ class _Batch(eqx.Module):
 
 
 def _run_candidates(
-    params: CostParams, robot_eval, obj, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
-    T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool,
+    params: CostParams, robot_eval, coll: _Collide, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
+    T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool, grip: np.ndarray,
     q_ref: np.ndarray | None = None, ref_weight: np.ndarray | None = None,
 ) -> _Batch:
-    """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded)."""
+    """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded); ``grip`` (n, 2)
+    is the finger opening (m) used in the collision check."""
     n = x0.shape[0]
     chunk = max(1, cfg.chunk_size)  # always padded: one compilation per (chunk, keyframes)
     solver = SolverConfig(
@@ -271,19 +303,24 @@ def _run_candidates(
             pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k), jnp.asarray(pad(q_ref), jnp.float32),
                             jnp.asarray(pad(ref_weight), jnp.float32))
         sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
-        ev = _evaluate(robot_eval, obj, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
-                       jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32))
+        ev = _evaluate(robot_eval, coll, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
+                       jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32),
+                       jnp.asarray(pad(grip), jnp.float32))
         outs.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
     cat = [np.concatenate(x) for x in zip(*outs)]
     return _Batch(*cat)
 
 
-def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True) -> tuple[np.ndarray, dict]:
+def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True,
+            seated: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Apply the stages in order; returns the surviving mask and counts rejected per stage
-    (collisions only when ``collision``)."""
+    (collisions only when ``collision``; ``seated`` = the free gripper clears everything)."""
     counts = {}
     alive = valid.copy()
     counts["grasp_invalid"] = int((~valid).sum())
+    seated = np.ones_like(alive) if seated is None else seated
+    counts["grasp_collision"] = int((alive & ~seated).sum())
+    alive &= seated
     ok = np.isfinite(b.cost) & np.all(np.isfinite(b.q), axis=(1, 2))
     counts["solver"] = int((alive & ~ok).sum())
     alive &= ok
@@ -335,14 +372,6 @@ def object_geometry(part_points: Sequence[np.ndarray], boxes_per_part: int = 8, 
         owner += [k] * (int(lab.max()) + 1)
     geom = object_boxes_from_points(np.concatenate(pts), np.concatenate(ids), len(owner), pad=pad)
     return dataclasses.replace(geom, box_part=jnp.asarray(owner, jnp.int32), num_parts=len(part_points))
-
-
-def _hand_part_mask(robot: YumiModel, obj: ObjectGeometry, grasped: Sequence[int]) -> np.ndarray:
-    """(caps, prims): False for hand capsules vs primitives of grasped parts."""
-    hand = np.asarray(robot.geom.hand_mask)
-    prim_part = np.concatenate([np.asarray(obj.box_part), np.asarray(obj.cap_part)])
-    g = np.isin(prim_part, list(grasped))
-    return ~(hand[:, None] & g[None, :])
 
 
 def _failure(result: PlanResult, message: str, T_robot_obj, idx, info) -> RobotPlan:
@@ -416,7 +445,8 @@ def plan_robot(
     idx = keyframe_indices(nT, config.num_keyframes)
     K = len(idx)
     T_robot_part = np.asarray((_se3(T_robot_obj) @ _se3(T_obj_part[idx])).wxyz_xyz)  # (K, P, 7)
-    obj = object_geometry(part_points, config.object_boxes_per_part, config.object_pad, config.seed)
+    coll = _Collide(robot_proxy(robot, config.sample_spacing),
+                    part_sdf(list(part_points), config.sdf_spacing, radius=config.object_radius))
     robot_lite = strip_robot(robot)
     r = (K - 1) / max(config.smoothness_reference - 1, 1)
     weights = eqx.tree_at(lambda w: (w.velocity, w.acceleration), config.weights,
@@ -425,6 +455,7 @@ def plan_robot(
     acceleration = float(config.weights.acceleration) > 0
     home = np.asarray(HOME_Q, np.float32)
     home_tcp = np.asarray(tcp_poses(robot_lite, jnp.asarray(home)))  # (2, 7)
+    open_grip = float(robot.upper[14])
     info: dict = {"num_frames": nT, "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES}}
 
     # Ranking
@@ -455,8 +486,34 @@ def plan_robot(
             grasp_cache[k] = sample_antipodal_grasps(mesh, jax.random.fold_in(key, k), config.grasp_config)
         return grasp_cache[k]
 
+    hand = hand_geometry(robot_lite, coll.proxy)
+    seat_cache: dict[int, tuple[PartGrasps, np.ndarray, np.ndarray]] = {}
+
+    def get_seated(k: int) -> tuple[PartGrasps, np.ndarray, np.ndarray]:
+        """Grasps of part k backed off to their seating depth, the 'clears' mask, the depths."""
+        if k not in seat_cache:
+            g = get_grasps(k)
+            Tg = np.asarray(g.T_part_grasp, float)
+            opening = jnp.asarray(np.clip(np.asarray(g.width) / 2, 0.0, open_grip), jnp.float32)
+            clear = []
+            for d in config.grasp_depths:
+                Td = np.asarray((_se3(Tg) @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -d]))).wxyz_xyz)
+                T_tcp = grasp_targets(T_robot_obj, T_obj_part[idx, k], Td)
+                clear.append(np.asarray(hand_clearance(robot_lite, hand, coll.sdf, jnp.asarray(T_tcp, jnp.float32),
+                                                       opening, jnp.asarray(T_robot_part, jnp.float32),
+                                                       jnp.asarray(k), config.check_palm_on_grasped_part)))
+            clear = np.stack(clear, 1) + config.hand_tolerance  # (n, D)
+            ok = clear >= config.collision_margin
+            j = np.where(ok.any(1), np.argmax(ok, 1), np.argmax(clear, 1))
+            depth = np.asarray(config.grasp_depths, float)[j]
+            offs = jnp.stack([jnp.zeros(len(depth)), jnp.zeros(len(depth)), -jnp.asarray(depth)], -1)
+            Tg_s = (_se3(Tg) @ jaxlie.SE3.from_translation(offs)).wxyz_xyz
+            seat_cache[k] = (eqx.tree_at(lambda x: x.T_part_grasp, g, jnp.asarray(Tg_s, g.T_part_grasp.dtype)),
+                             ok.any(1), depth)
+        return seat_cache[k]
+
     def single_arm(k: int, arm: int) -> tuple[_Batch, np.ndarray, dict, np.ndarray]:
-        g = get_grasps(k)
+        g, seated, _ = get_seated(k)
         Tg = np.asarray(g.T_part_grasp, float)
         n = Tg.shape[0]
         target = np.repeat(np.repeat(home_tcp[None, None], n, 0), K, 1)  # (n, K, 2, 7)
@@ -464,12 +521,27 @@ def plan_robot(
         active = np.zeros((n, 2), np.float32)
         active[:, arm] = 1
         x0 = np.repeat(np.repeat(home[None, None], n, 0), K, 1)
-        mask = _hand_part_mask(robot, obj, [k])
-        b = _run_candidates(params, robot_lite, obj, x0, target, active, T_robot_part, mask, config, acceleration)
+        mask = hand_part_mask(coll.proxy, P, [(arm, k)], pads_only=config.check_palm_on_grasped_part)
+        grip = np.full((n, 2), open_grip, np.float32)
+        grip[:, arm] = np.clip(np.asarray(g.width, np.float32) / 2, 0.0, open_grip)
         valid = np.asarray(g.valid, bool)
+        # only grasps that are valid and seat without collision are solved (the rest keep NaN
+        # joints / infinite errors and are counted at their own stage)
+        sel = np.nonzero(valid & seated)[0]
+        b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
+                   lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
+                   pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
+                   viol=np.full(n, np.inf, np.float32), mins=np.full((n, 3), -np.inf, np.float32))
+        if len(sel):
+            bs = _run_candidates(params, robot_lite, coll, x0[sel], target[sel], active[sel], T_robot_part, mask,
+                                 config, acceleration, grip[sel])
+            b = _Batch(*[np.asarray(full).astype(np.asarray(part).dtype) for full, part in
+                         zip(jax.tree.leaves(b), jax.tree.leaves(bs))])
+            for full, part in zip(jax.tree.leaves(b), jax.tree.leaves(bs)):
+                full[sel] = part
         # Bimanual: the other arm is still at home here, so collisions are checked after the
         # joint 16-DoF solve only.
-        alive, counts = _reject(b, valid, config, collision=not config.bimanual)
+        alive, counts = _reject(b, valid, config, collision=not config.bimanual, seated=seated)
         return b, alive, counts, target
 
     best = None
@@ -495,6 +567,7 @@ def plan_robot(
                     break
                 any_grasp = True
                 b, alive, counts, target = single_arm(k, a)
+                g = get_seated(k)[0]
                 att["rejections"][ARM_NAMES[a]] = counts
                 for s, c in counts.items():
                     info["rejections"][s] += c
@@ -505,12 +578,12 @@ def plan_robot(
             if stage is not None:
                 last_stage = stage
                 continue
-            cand = _combine(per_arm, params, robot_lite, obj, T_robot_part, config, acceleration, home_tcp, att, info)
+            cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info)
             if cand is None:
                 last_stage = att.get("failed_stage", "collision")
                 continue
             # approach
-            plan = _approach(cand, params, robot_lite, robot, obj, T_robot_part, config, acceleration, att, info)
+            plan = _approach(cand, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info)
             if plan is None:
                 last_stage = "approach"
                 continue
@@ -531,6 +604,8 @@ def plan_robot(
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
         return _failure(res, msg, T_robot_obj, idx, info)
     info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
+    info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
+                                     for k, i in zip(best["part"], best["grasp_index_arr"])]
     q_key = best["q"]
     return RobotPlan(
         result=PlanResult.success, message="feasible plan found", keyframe_indices=idx, q_keyframes=q_key,
@@ -558,7 +633,7 @@ def _first_empty_stage(per_arm, att) -> str | None:
     return None
 
 
-def _combine(per_arm, params, robot_lite, obj, T_robot_part, cfg: PlanConfig, acceleration, home_tcp, att, info):
+def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
     """Single arm: survivors ordered by cost. Bimanual: top-k × top-k joint solves."""
     if len(per_arm) == 1:
         a, k, b, alive, target, g = per_arm[0]
@@ -586,8 +661,13 @@ def _combine(per_arm, params, robot_lite, obj, T_robot_part, cfg: PlanConfig, ac
         target[m][:, a0] = t0[i][:, a0]
         target[m][:, a1] = t1[j][:, a1]
     active = np.ones((n, 2), np.float32)
-    mask = _hand_part_mask(robot_lite, obj, [k0, k1])
-    b = _run_candidates(params, robot_lite, obj, x0, target, active, T_robot_part, mask, cfg, acceleration)
+    grip = np.zeros((n, 2), np.float32)
+    for m, (i, j) in enumerate(pairs):
+        grip[m, a0] = min(float(g0.width[i]) / 2, open_grip)
+        grip[m, a1] = min(float(g1.width[j]) / 2, open_grip)
+    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], [(a0, k0), (a1, k1)],
+                          pads_only=cfg.check_palm_on_grasped_part)
+    b = _run_candidates(params, robot_lite, coll, x0, target, active, T_robot_part, mask, cfg, acceleration, grip)
     alive, counts = _reject(b, np.ones(n, bool), cfg)
     att["rejections"]["bimanual"] = counts
     for s, c in counts.items():
@@ -604,7 +684,7 @@ def _combine(per_arm, params, robot_lite, obj, T_robot_part, cfg: PlanConfig, ac
                  mins=b.mins[m]) for m in ids]
 
 
-def _approach(cands, params, robot_lite, robot, obj, T_robot_part, cfg: PlanConfig, acceleration, att, info):
+def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
     """Approach segments for the best candidates (batched); the first that passes wins."""
     cands = cands[: cfg.approach_candidates]
     A = max(2, cfg.approach_steps)
@@ -615,24 +695,26 @@ def _approach(cands, params, robot_lite, robot, obj, T_robot_part, cfg: PlanConf
     active = np.zeros((n, 2), np.float32)
     grasped = set()
     for m, c in enumerate(cands):
+        for a, k, i, g in c["arms"]:
+            grasped.add((a, k))
         x0[m] = c["q"][0][None]
         target[m] = c["target"][0][None]
         for a, k, i, g in c["arms"]:
-            grasped.add(k)
             active[m, a] = 1
             T0 = _se3(c["target"][0, a])
             offs = jnp.stack([jnp.zeros(A), jnp.zeros(A), -cfg.approach_distance * (1.0 - jnp.asarray(s))], -1)
             path = jaxlie.SE3(T0.wxyz_xyz[None]) @ jaxlie.SE3.from_translation(offs)
             target[m, :, a] = np.asarray(path.wxyz_xyz)
     T_part0 = np.repeat(T_robot_part[:1], A, 0)
-    mask = _hand_part_mask(robot, obj, sorted(grasped))
+    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], sorted(grasped), pads_only=cfg.check_palm_on_grasped_part)
     # No rest pull here; instead a joint reference to the trajectory's first keyframe (weak along
     # the segment, strong at its end) keeps the segment in that keyframe's null-space branch.
     params_a = eqx.tree_at(lambda p: p.weights.rest, params, jnp.zeros_like(params.weights.rest))
     q_ref = x0.copy()
     ref_w = np.full((n, A), 0.1, np.float32)
     ref_w[:, -1] = 10.0  # end at the trajectory's first keyframe
-    b = _run_candidates(params_a, robot_lite, obj, x0, target, active, T_part0, mask, cfg, acceleration,
+    grip = np.full((n, 2), open_grip, np.float32)  # the approach is made with open fingers
+    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
                         q_ref, ref_w)
     alive, counts = _reject(b, np.ones(n, bool), cfg)
     # The last waypoint reaches the same TCP pose as the trajectory's first keyframe, possibly
