@@ -222,6 +222,10 @@ def cmd_plan(a: argparse.Namespace) -> int:
             return 2
         model = load_object_model(a.model)
         traj = load_trajectory(a.traj)
+        if traj.num_parts != model.num_parts:
+            print(f"error: {a.traj} has {traj.num_parts} parts but the model {a.model} has {model.num_parts}",
+                  file=sys.stderr)  # fmt: skip
+            return 2
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [np.asarray(model.part_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
@@ -235,9 +239,14 @@ def cmd_plan(a: argparse.Namespace) -> int:
         hand_tolerance=a.hand_tolerance,
     )  # fmt: skip
     t0 = time.perf_counter()
-    plan = plan_robot(load_yumi(), part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg)
+    robot = load_yumi()
+    plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg)
     save_plan(plan, out)
     print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
+    if a.rerun and plan.success:
+        from .plan import log_plan
+
+        print(f"  rerun: {log_plan(robot, plan, part_points, T_obj_part, out / 'plan.rrd')}")
     print(f"  rejections: {plan.info['rejections']}")
     if plan.success:
         arms = ", ".join(f"{n} arm -> part {int(k)} (grasp {int(g)})" for n, k, g in
@@ -375,14 +384,15 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--max-parts", type=int, default=2, help="ranked parts (pairs) tried")
     pl.add_argument("--hands", choices=("studio", "none"), default="studio",
                     help="rank parts by the studio's hand keypoints (with --studio-gt) or by motion")  # fmt: skip
-    pl.add_argument("--chunk", type=int, default=480, help="grasp candidates per vmapped solve")
+    pl.add_argument("--chunk", type=int, default=160, help="grasp candidates per vmapped solve")
     pl.add_argument("--max-iterations", type=int, default=50, help="LM iterations per solve")
     pl.add_argument("--approach", type=float, default=0.06, help="pre-grasp offset along the gripper axis (m)")
     pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
     pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
-                    help="allowed gripper penetration into other parts' box proxies (m; 0 = strict)")  # fmt: skip
+                    help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
+    pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")
     pl.set_defaults(func=cmd_plan)
 
@@ -393,8 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--out", required=True, help="output directory (sim.json, sim.npz, sim.mp4, sim.rrd)")
     sm.add_argument("--video", action="store_true", help="record the robot-view camera into sim.mp4")
     sm.add_argument("--rerun", action="store_true", help="write sim.rrd (robot + object over time)")
-    sm.add_argument("--root", choices=("free", "weld"), default="free",
-                    help="object root resting free on the table (default) or welded to it")  # fmt: skip
+    sm.add_argument("--root", choices=("auto", "free", "weld"), default="auto",
+                    help="object root resting free on the table, welded to it, or auto (default: free "
+                         "when the object rests stably on its own, else welded)")  # fmt: skip
     sm.add_argument("--start", choices=("pregrasp", "home"), default="pregrasp",
                     help="start at the plan's pre-grasp (default) or at home with an unplanned transit")  # fmt: skip
     sm.add_argument("--joint-speed", type=float, default=0.8, help="largest commanded arm joint speed (rad/s)")
