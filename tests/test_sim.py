@@ -57,6 +57,7 @@ def test_ground_truth_plan_succeeds_by_physics(stapler, gt_result):
     sc = build_sim_scene(load_sim_object(stapler))
     assert sc.model.neq == 2 and np.all(sc.model.eq_type == mujoco.mjtEq.mjEQ_JOINT)
     assert sc.model.jnt_type[sc.object_joints[0]] == mujoco.mjtJoint.mjJNT_FREE  # root rests freely
+    assert r.metrics["root"] == "free" and sc.root == "free"
     # independent reference: the catalogue's scripted hinge angle at the demo's start and end vs
     # MuJoCo's recorded hinge qpos (after the free root's 7 entries)
     keys = get_object("stapler").joint_values
@@ -206,11 +207,13 @@ def test_video_and_rerun_outputs(stapler, gt_plan, tmp_path):
 def test_friction_holds_the_part_frictionless_pads_slip(tmp_path):
     """The nerf gun's slide is pulled back 4 cm by a pinch on its sides: with the pads' friction
     the part follows the gripper; with (nearly) frictionless pads and part it slips out and the
-    Grasp stage fails. (Root welded: the idle arm's home pose touches this long object.)"""
+    Grasp stage fails. The gun stands on its grip in the studio's pose and topples when free, so
+    ``root="auto"`` welds it."""
     make_object("nerf_gun", tmp_path / "gun", SMALL)
     obj = load_sim_object(tmp_path / "gun")
     plan = oracle_plan(obj)
-    held = simulate_plan(plan, obj, SimConfig(root="weld"), progress=False)
+    held = simulate_plan(plan, obj, progress=False)
+    assert held.metrics["root"] == "weld" and "not a resting pose" in held.metrics["root_note"]
     assert held.success, held.reasons
     assert held.metrics["grasp"]["slip_mm"]["right"] < 3.0
     slide = held.object_qpos[:, 0]

@@ -42,10 +42,16 @@ class SuccessConfig(eqx.Module):
 class SimConfig(eqx.Module):
     """Options of :func:`rsrd_jax.sim.simulate_plan`: scene physics, motion timing, recording."""
 
-    root: Literal["free", "weld"] = "free"
+    root: Literal["auto", "free", "weld"] = "auto"
     """How the object's root part is held: ``"free"`` rests on the table with friction (a free
     joint; it can slide or tip, and the base displacement is reported), ``"weld"`` fixes it to
-    the world at the true pose (a simplification the paper's real trials do not have)."""
+    the world at the true pose (a simplification the paper's real trials do not have), ``"auto"``
+    free when the object rests stably in its scan pose on its own (``stability_time`` with the
+    robot away), welded otherwise (e.g. the nerf gun stands on its grip and would topple)."""
+    stability_time: float = 0.5
+    """``root="auto"``: seconds the free object is simulated alone to test that it rests."""
+    stability_tolerance: float = 0.003
+    """``root="auto"``: largest displacement (m) of a root geom centre during the test."""
     start: Literal["pregrasp", "home"] = "pregrasp"
     """Where the robot starts: at the plan's pre-grasp (``q_approach[0]``; the transit from home is
     not part of a RobotPlan — RSRD plans it separately with cuRobo's collision-aware motion

@@ -534,7 +534,7 @@ def simulate_plan(
                  "end_of_motion_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in end_err]},
         "base_displacement_mm": round(1000 * base_p, 2),
         "base_rotation_deg": round(float(np.rad2deg(base_r)), 2),
-        "root": cfg.root,
+        "root": scene.root, "root_note": scene.root_note,
         "sim_time_s": round(sim_t, 3), "wall_time_s": round(wall, 3), "setup_s": round(setup_s, 3),
         "realtime_factor": round(sim_t / max(wall, 1e-9), 2), "steps": int(round(sim_t / m.opt.timestep)),
     })  # fmt: skip

@@ -130,6 +130,10 @@ class SimScene:
     """(J,) joint ids of the object (including a free root joint when ``root="free"``)."""
     camera: int
     """Camera id of the robot view."""
+    root: str = "free"
+    """How the root is held in this scene: "free" or "weld"."""
+    root_note: str = ""
+    """Why (``root="auto"``: the rest test's result)."""
 
     def part_poses(self) -> np.ndarray:
         """(P, 4, 4) current world (= robot base) poses of the parts."""
@@ -168,12 +172,44 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
 
     Args:
         obj: from :func:`load_sim_object`.
-        config: physics options (root held free or welded, joint damping/friction, friction).
+        config: physics options (root held free, welded or auto, joint damping/friction, friction).
         T_robot_root: (7,) root pose to place the object at (default: the true ``obj.T_robot_root``).
 
     Returns:
-        A :class:`SimScene` with the robot at ``HOME_Q`` (grippers open) and the object at rest.
+        A :class:`SimScene` with the robot at ``HOME_Q`` (grippers open) and the object at rest;
+        ``scene.root`` says how the root is held ("free" or "weld").
     """
+    if config.root == "auto":
+        scene = _build(obj, config, T_robot_root, "free")
+        moved = _rest_test(scene, config.stability_time)
+        if moved <= config.stability_tolerance:
+            scene.root_note = f"free (rests: {1000 * moved:.1f} mm in {config.stability_time:g} s alone)"
+            return scene
+        scene = _build(obj, config, T_robot_root, "weld")
+        scene.root_note = (f"weld (free, the object moves {1000 * moved:.0f} mm in {config.stability_time:g} s "
+                           "on its own: not a resting pose)")  # fmt: skip
+        return scene
+    if config.root not in ("free", "weld"):
+        raise ValueError(f"config.root must be 'auto', 'free' or 'weld', got {config.root!r}")
+    scene = _build(obj, config, T_robot_root, config.root)
+    scene.root_note = config.root
+    return scene
+
+
+def _rest_test(scene: SimScene, seconds: float) -> float:
+    """Largest displacement (m) of the root part's geom centres when the object is simulated with
+    the robot holding home (on a copy of the state; moving parts may sag on their joints)."""
+    m = scene.model
+    d = mujoco.MjData(m)
+    d.qpos[:], d.ctrl[:] = scene.data.qpos, scene.data.ctrl
+    mujoco.mj_forward(m, d)
+    geoms = scene.part_geoms[0]
+    x0 = d.geom_xpos[geoms].copy()
+    mujoco.mj_step(m, d, nstep=max(1, int(round(seconds / m.opt.timestep))))
+    return float(np.linalg.norm(d.geom_xpos[geoms] - x0, axis=1).max())
+
+
+def _build(obj: SimObject, config: SimConfig, T_robot_root: np.ndarray | None, root_mode: str) -> SimScene:
     from ..studio import ROBOT_CAMERA_EYE, ROBOT_CAMERA_TARGET, get_object, object_mjcf
 
     sobj = get_object(obj.name)
@@ -191,10 +227,8 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
     spec = build_scene_spec(doc, pos=T_rr[4:], quat_wxyz=T_rr[:4], prefix=OBJECT_PREFIX, assets=files)
     spec.option.timestep = config.timestep
     root = spec.body(f"{OBJECT_PREFIX}part0")
-    if config.root == "free":
+    if root_mode == "free":
         root.add_freejoint(name=f"{OBJECT_PREFIX}root")
-    elif config.root != "weld":
-        raise ValueError(f"config.root must be 'free' or 'weld', got {config.root!r}")
     for k in range(obj.num_parts):
         for g in spec.body(f"{OBJECT_PREFIX}part{k}").geoms:
             g.friction = [config.object_friction, g.friction[1], g.friction[2]]
@@ -220,7 +254,7 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
     spec.visual.global_.offheight = max(480, int(config.video_size[1]))
     m = spec.compile()
     root_mass = float(m.body_mass[m.body(f"{OBJECT_PREFIX}part0").id])
-    if config.root == "free" and 0 < root_mass < config.min_root_mass:
+    if root_mode == "free" and 0 < root_mass < config.min_root_mass:
         for g in root.geoms:
             g.density = g.density * config.min_root_mass / root_mass
         m = spec.compile()
@@ -240,7 +274,7 @@ def build_sim_scene(obj: SimObject, config: SimConfig = SimConfig(), T_robot_roo
         ctrl_range=m.actuator_ctrlrange[acts].copy(), part_bodies=bodies, part_geoms=geoms,
         pad_geoms=np.array([[m.geom(n).id for n in pair] for pair in PAD_GEOMS]),
         tcp_sites=np.array([m.site("tcp_r").id, m.site("tcp_l").id]), object_joints=obj_joints,
-        camera=m.camera(ROBOT_CAMERA).id,
+        camera=m.camera(ROBOT_CAMERA).id, root=root_mode,
     )  # fmt: skip
 
     # robot at home, grippers open; object joints at the demo's first configuration
