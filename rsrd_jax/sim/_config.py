@@ -86,7 +86,7 @@ class SimConfig(eqx.Module):
     """Longest time (s) the grippers close before the motion starts anyway."""
     grip_stall_speed: float = 0.002
     """Finger speed (m/s) below which a closing gripper counts as stalled (on the part or empty)."""
-    release_clearance: float = 0.012
+    release_clearance: float = 0.006
     """On release the jaw opens to its width on the part plus this (m), not fully: fully opened
     fingers (50 mm) knock neighbouring parts or tip light objects over."""
     retreat_distance: float = 0.08
