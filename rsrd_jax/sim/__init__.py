@@ -1,8 +1,9 @@
 """sim: MuJoCo execution of a RobotPlan with the studio object, and success per stage.
 
 Owns the simulation scene (YuMi position servos + table + the object with its real joints at
-the true pose, root free on the table or welded), the execution sequence (approach, close the
-grippers until they stall, follow the time-scaled joint trajectory, release, retreat), the
+the true pose; the root rests free on the table when it is stable there, else it is welded), the
+execution sequence (approach, close the grippers until they stall, follow the time-scaled joint
+trajectory, release, retreat; parts move only through finger contacts and friction), the
 paper's per-stage success tests (Traj, Grasp, Exec; Init is filled in by the caller) and the
 ``sim.json`` / ``sim.npz`` / ``sim.mp4`` / ``sim.rrd`` outputs, plus oracle plans (the demo's
 contacts + IK) for tests and benchmarks. Host-side MuJoCo C, not JAX: one physics rollout is
