@@ -19,7 +19,7 @@ from rsrd_jax.track._register import RegistrationError, read_robot_view, registe
 
 from ._gt_model import gt_object_model
 
-FAST = InitConfig(yaw_seeds=8, iters=40, refine_iters=30, lr_start=2e-2, lr_end=2e-3)
+FAST = InitConfig(yaw_seeds=8, iters=40, refine_iters=0, lr_start=2e-2, lr_end=2e-3)
 
 
 @pytest.fixture(scope="module")

@@ -219,7 +219,7 @@ class RegistrationError(ArtefactError):
 def register_object(
     model,
     view: RobotView,
-    init: InitConfig = InitConfig(yaw_seeds=16, iters=50, refine_iters=50, lr_start=2e-2, lr_end=2e-3),
+    init: InitConfig = InitConfig(yaw_seeds=16, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3),
     weights: RegWeights = RegWeights(),
     roi_size: int = 224,
     max_gaussians: int = 4000,
@@ -244,8 +244,8 @@ def register_object(
     Args:
         model: the `ObjectModel` (rsrd_jax.parts) built from the scan (its +z is up).
         view: the robot camera's RGB, metric depth, intrinsics and `T_robot_cam`.
-        init: seed count, iterations and learning rates (`yaw_seeds`, `iters`, `refine_iters`,
-            `lr_start`, `lr_end`).
+        init: seed count, iterations and learning rates (`yaw_seeds`, `iters`, `lr_start`,
+            `lr_end`; `refine_iters` > 0 adds an ROI refinement of the best seed before ICP).
         weights: weights of the registration objective.
         roi_size: crop side (pixels) given to the feature extractor.
         max_gaussians: Gaussians used for rendering.
@@ -318,16 +318,17 @@ def register_object(
     Ts, losses = _optimise(tm, T_seeds, cj, obs, lr_schedule(init.lr_start, init.lr_end, init.iters), rcfg, md, blob_g, T_robot_cam, tz, weights)
     best = int(jnp.argmin(losses))
     T_best = jaxlie.SE3(Ts[best])
-    # refine on an ROI around the best pose's projection
-    uvb, zb = project_points(K, T_best @ posed.means)
-    box2 = roi_box(np.asarray(uvb)[np.asarray(zb) > 0], K.width, K.height, 0.2)
-    obs2 = obsr.observe(0, view.rgb, box2)
-    md2 = jnp.asarray(crop(view.depth, box2, g, cv2.INTER_NEAREST))
-    rcfg2 = choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5)
-    lrs2 = lr_schedule(init.lr_end, init.lr_end * 0.5, init.refine_iters)
-    blob2 = jnp.asarray(crop(blob.astype(np.float32), box2, g, cv2.INTER_AREA))
-    Ts2, losses2 = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
-    T_cam_obj = jaxlie.SE3(Ts2[0])
+    T_cam_obj, final_loss = T_best, float(losses[best])
+    if init.refine_iters > 0:  # optional: refine on an ROI around the best pose (a second compile)
+        uvb, zb = project_points(K, T_best @ posed.means)
+        box2 = roi_box(np.asarray(uvb)[np.asarray(zb) > 0], K.width, K.height, 0.2)
+        obs2 = obsr.observe(0, view.rgb, box2)
+        md2 = jnp.asarray(crop(view.depth, box2, g, cv2.INTER_NEAREST))
+        rcfg2 = choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5)
+        lrs2 = lr_schedule(init.lr_end, init.lr_end * 0.5, init.refine_iters)
+        blob2 = jnp.asarray(crop(blob.astype(np.float32), box2, g, cv2.INTER_AREA))
+        Ts2, losses2 = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
+        T_cam_obj, final_loss = jaxlie.SE3(Ts2[0]), float(losses2[0])
     # metric refinement: ICP of the blob's points (camera frame) onto the model's Gaussian centres
     icp_info = {}
     if icp_iters > 0:
@@ -342,13 +343,13 @@ def register_object(
     T_robot_obj = T_robot_cam @ T_cam_obj
     info = {
         "seed_losses": np.asarray(losses).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
-        "refined_loss": float(losses2[0]), "blob_pixels": int(blob.sum()), "silhouette_pixels": int(m.sum()),
+        "final_loss": final_loss, "blob_pixels": int(blob.sum()), "silhouette_pixels": int(m.sum()),
         "icp": icp_info, "time_s": time.perf_counter() - t0,
     }  # fmt: skip
     return Registration(
         T_robot_obj=np.asarray(T_robot_obj.wxyz_xyz, np.float64),
         T_cam_obj=np.asarray(T_cam_obj.wxyz_xyz, np.float64),
-        loss=float(losses2[0]),
+        loss=final_loss,
         depth_residual_mm=resid,
         info=info,
     )

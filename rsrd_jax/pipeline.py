@@ -1,0 +1,263 @@
+"""The whole pipeline on a studio object: scan → model → track → register → plan → simulate.
+
+Used by `rsrd-jax demo` and `experiments/robot_trials.py`. Every stage reads the previous stage's
+artefact from disk (as the separate CLI commands do) and writes its own under `out/`:
+
+    out/studio/      scan, demo video, robot view, MJCF, ground truth (MuJoCo renders)
+    out/model/       ObjectModel (+ build.rrd)
+    out/track/       PartTrajectory (+ overlay.mp4, track.rrd)
+    out/register/    registration.json (estimate, error against the studio's ground truth)
+    out/plan/        RobotPlan (+ plan.rrd)
+    out/sim/         sim.json / sim.npz (+ sim.mp4, sim.rrd)
+    out/summary.json stage results, metrics and times
+
+Nothing downstream reads ground truth: tracking uses the studio's hand masks and relative-depth
+oracle (labelled as oracles), planning uses hand keypoints given in the demo camera's frame (the
+output a hand detector would give) moved into the object frame by the *tracked* object pose, and
+the plan is made for the *registered* object pose while the simulation places the object at its
+true pose. Ground truth is only read to score the stages.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .io import atomic_write_json
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Sizes and options of the end-to-end run (defaults sized for ≤ 10 min on a 2-core CPU)."""
+
+    seed: int = 0
+    """Studio seed (textures, cameras, demo placement)."""
+    scan_views: int = 16
+    """Scan views."""
+    scan_size: tuple[int, int] = (160, 120)
+    """Scan image size (W, H)."""
+    demo_frames: int | None = 30
+    """Demo frames (None: the object's own 90–120)."""
+    demo_size: tuple[int, int] = (320, 240)
+    """Demo video size (W, H)."""
+    robot_yaw_deg: float | None = None
+    """Object yaw on the table (None: the studio's random yaw for the seed)."""
+    fit_iterations: int = 400
+    """3DGS iterations."""
+    field_iterations: int = 300
+    """Feature-field iterations."""
+    max_gaussians: int = 6000
+    """Gaussian capacity of the model."""
+    track_steps: int = 50
+    """Adam steps per tracked frame."""
+    track_roi: int = 224
+    """Tracking ROI crop side (pixels)."""
+    init_iters: int = 80
+    """Tracking initialisation iterations per seed."""
+    register_seeds: int = 16
+    """Registration yaw seeds."""
+    init_position_tol_m: float = 0.02
+    """Init stage: registration centroid error below this (m)."""
+    init_rotation_tol_deg: float = 10.0
+    """Init stage: registration rotation error below this (degrees)."""
+    sim_video: bool = True
+    """Write sim.mp4 of the simulated robot."""
+    rerun: bool = True
+    """Write rerun recordings of the stages."""
+
+
+def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.ndarray:
+    """Fingertip keypoints in the object frame from the studio's hand oracle and the *tracked*
+    object pose.
+
+    The studio's keypoints are moved into the demo camera's frame (what a 3D hand detector such as
+    HaMeR gives), then into the object frame by the tracked `T_cam_obj` of each frame.
+
+    Args:
+        studio_dir: studio object directory (needs `demo/gt/hand_keypoints.npz`, `part_poses.npz`).
+        T_cam_obj: (T, 7) tracked object poses in the demo camera.
+
+    Returns:
+        (T, H, 2, 3) keypoints (m), contact order.
+    """
+    import jax.numpy as jnp
+    import jaxlie
+
+    d = Path(studio_dir) / "demo" / "gt"
+    with np.load(d / "hand_keypoints.npz") as z:
+        kw = np.asarray(z["keypoints_world"], np.float64)  # T, H, 2, 3 (demo world)
+    with np.load(d / "part_poses.npz") as z:
+        T_cw = np.asarray(jaxlie.SE3(jnp.asarray(z["T_cam_world"], jnp.float32)).as_matrix(), np.float64)
+    T_co = np.asarray(jaxlie.SE3(jnp.asarray(T_cam_obj, jnp.float32)).as_matrix(), np.float64)
+    n = min(len(kw), len(T_co))
+    kc = kw[:n] @ T_cw[:3, :3].T + T_cw[:3, 3]
+    T_oc = np.linalg.inv(T_co[:n])
+    return np.einsum("tij,thkj->thki", T_oc[:, :3, :3], kc) + T_oc[:, None, None, :3, 3]
+
+
+def _stage(name: str, report: dict, log):
+    class _Timer:
+        def __enter__(self):
+            report.setdefault(name, {})
+            log(f"[{name}] ...")
+            self.t0 = time.perf_counter()
+            return self
+
+        def __exit__(self, *exc):
+            report.setdefault(name, {})["time_s"] = round(time.perf_counter() - self.t0, 2)
+            if exc[0] is None:
+                log(f"[{name}] done in {report[name]['time_s']:.1f} s: {report[name].get('summary', '')}")
+            return False
+
+    return _Timer()
+
+
+def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = PipelineConfig(), log=print,
+                 studio_dir: str | Path | None = None, model_dir: str | Path | None = None,
+                 track_dir: str | Path | None = None) -> dict:  # fmt: skip
+    """Runs every stage on one studio object and returns (and writes) the summary.
+
+    Args:
+        object_name: studio object (``rsrd-jax studio list``).
+        out: output directory (created; existing stage outputs inside are replaced).
+        cfg: sizes and options.
+        log: progress messages (each stage also shows a progress bar).
+        studio_dir, model_dir, track_dir: reuse these artefacts instead of making them (robot
+            trials reuse one object's model and trajectory across table placements).
+
+    Returns:
+        The summary: per stage its time and result, the paper's stage successes
+        (init/traj/grasp/exec) and ``end_to_end``.
+    """
+    from .io import load_plan, load_trajectory, read_demo, read_demo_gt, save_plan, save_trajectory, write_video
+    from .parts import BuildConfig, FieldConfig, FitConfig, build_object_model, load_object_model, save_object_model
+    from .plan import PlanConfig, plan_robot, read_robot_object_pose
+    from .robot import load_yumi
+    from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan, with_init
+    from .studio import StudioConfig, make_object
+    from .track import InitConfig, StudioDepthOracle, StudioHandMasks, TrackConfig, add_metrics, track_video
+    from .track import read_robot_view, register_object, registration_error
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rep: dict = {"object": object_name, "config": dataclasses.asdict(cfg)}
+    t_all = time.perf_counter()
+
+    # ---- studio (MuJoCo renders with ground truth)
+    if studio_dir is None:
+        studio_dir = out / "studio"
+        with _stage("studio", rep, log):
+            meta = make_object(object_name, studio_dir, StudioConfig(
+                seed=cfg.seed, scan_views=cfg.scan_views, scan_size=cfg.scan_size, demo_frames=cfg.demo_frames,
+                demo_size=cfg.demo_size, robot_object_yaw_deg=cfg.robot_yaw_deg), overwrite=True)  # fmt: skip
+            prod = meta.get("products", {})
+            rep["studio"]["summary"] = (f"{len(meta.get('parts', []))} parts, {prod.get('demo', {}).get('frames')} demo frames, "
+                                        f"robot-view yaw {prod.get('robot_view', {}).get('yaw_deg')}°")  # fmt: skip
+    studio_dir = Path(studio_dir)
+
+    # ---- build the object model from the scan
+    if model_dir is None:
+        model_dir = out / "model"
+        with _stage("build", rep, log):
+            bcfg = BuildConfig(fit=FitConfig(iterations=cfg.fit_iterations, max_gaussians=cfg.max_gaussians, seed=cfg.seed),
+                               field=FieldConfig(iterations=cfg.field_iterations, seed=cfg.seed))  # fmt: skip
+            model = build_object_model(studio_dir / "scan", bcfg, progress=True,
+                                       rrd_path=model_dir / "build.rrd" if cfg.rerun else None)  # fmt: skip
+            save_object_model(model, model_dir)
+            m = model.meta["metrics"]
+            rep["build"].update(num_gaussians=int(model.gaussians.num_gaussians), num_parts=model.num_parts,
+                                metrics={k: v for k, v in m.items() if isinstance(v, (int, float))})  # fmt: skip
+            rep["build"]["summary"] = f"{model.gaussians.num_gaussians} Gaussians, {model.num_parts} parts"
+    model = load_object_model(model_dir)
+
+    # ---- track the demo video
+    demo = read_demo(studio_dir / "demo" / "demo.mp4")
+    if track_dir is None:
+        track_dir = out / "track"
+        with _stage("track", rep, log):
+            tcfg = TrackConfig(steps_per_frame=cfg.track_steps, roi_size=cfg.track_roi, seed=cfg.seed)
+            traj = track_video(model, demo, tcfg, InitConfig(iters=cfg.init_iters),
+                               StudioHandMasks(studio_dir / "demo"), StudioDepthOracle(studio_dir / "demo", seed=cfg.seed))  # fmt: skip
+            save_trajectory(traj, track_dir)
+            if cfg.rerun:
+                from .viz import log_tracking, overlay_frames
+
+                ov = overlay_frames(model, traj, demo)
+                write_video(track_dir / "overlay.mp4", ov, demo.fps)
+                log_tracking(model, traj, demo, track_dir / "track.rrd", ov)
+    traj = load_trajectory(track_dir)
+    gt = read_demo_gt(studio_dir / "demo")
+    pts = [np.asarray(model.part_points(k)) for k in range(model.num_parts)]
+    add = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"][: traj.num_frames], pts)
+    rep.setdefault("track", {}).update(
+        add_obj_mm=[round(x, 2) for x in add["add_obj_mm"]], add_obj_mean_mm=round(add["add_obj_mean_mm"], 2),
+        add_cam_mean_mm=round(add["add_mean_mm"], 2), frames=traj.num_frames,
+        frames_per_second=traj.meta.get("frames_per_second"), timings_s=traj.meta.get("timings_s"),
+    )  # fmt: skip
+    rep["track"]["summary"] = f"ADD (object frame) per part {rep['track']['add_obj_mm']} mm"
+    log(f"[track] {rep['track']['summary']}")
+
+    # ---- register the object in the robot's workspace (robot-view RGB + metric depth)
+    with _stage("register", rep, log):
+        view = read_robot_view(studio_dir)
+        from .track import InitConfig as _IC
+
+        reg = register_object(model, view, _IC(yaw_seeds=cfg.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3))
+        T_gt = read_robot_object_pose(studio_dir)
+        err = registration_error(reg.T_robot_obj, T_gt, np.concatenate(pts))
+        init_ok = err["translation_mm"] <= cfg.init_position_tol_m * 1e3 and err["rotation_deg"] <= cfg.init_rotation_tol_deg
+        rep["register"].update(error=err, depth_residual_mm=reg.depth_residual_mm, init_ok=bool(init_ok),
+                               T_robot_obj=reg.T_robot_obj.tolist(), T_robot_obj_gt=np.asarray(T_gt).tolist())  # fmt: skip
+        atomic_write_json(out / "register" / "registration.json", {**rep["register"], "info": reg.info})
+        rep["register"]["summary"] = (f"{err['translation_mm']:.1f} mm, {err['rotation_deg']:.1f}° "
+                                      f"({'ok' if init_ok else 'above'} {cfg.init_position_tol_m * 1e3:.0f} mm / {cfg.init_rotation_tol_deg:.0f}°)")  # fmt: skip
+
+    # ---- plan the robot's grasps and joint trajectory for the registered pose
+    with _stage("plan", rep, log):
+        cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
+        part_points = [p - cents[k] for k, p in enumerate(pts)]
+        hands = studio_hands_in_object_frame(studio_dir, traj.T_cam_obj)
+        plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands, config=PlanConfig(seed=cfg.seed))
+        save_plan(plan, out / "plan")
+        if cfg.rerun and plan.success:
+            from .plan import log_plan
+
+            log_plan(load_yumi(), plan, part_points, traj.T_obj_part, out / "plan" / "plan.rrd")
+        rep["plan"].update(result=plan.result_name, message=plan.message, parts=np.asarray(plan.part).tolist(),
+                           rejections=plan.info.get("rejections"))  # fmt: skip
+        rep["plan"]["summary"] = f"{plan.result_name} ({plan.message})"
+
+    # ---- simulate the plan with the object at its TRUE pose
+    with _stage("simulate", rep, log):
+        scfg = SimConfig()
+        res = simulate_plan(load_plan(out / "plan"), studio_dir, scfg, video=cfg.sim_video, progress=True)
+        reason = f"{err['translation_mm']:.1f} mm / {err['rotation_deg']:.1f}°"
+        res = with_init(res, init_ok, reason, **err)
+        paths = save_sim_result(res, out / "sim", fps=scfg.fps)
+        if cfg.rerun and res.executed:
+            log_sim_rerun(res, studio_dir, out / "sim" / "sim.rrd", scfg)
+        rep["simulate"].update(outcome=res.outcome_name, stages=res.stages, reasons=res.reasons,
+                               outputs={k: str(v) for k, v in paths.items()})  # fmt: skip
+        rep["simulate"]["summary"] = res.outcome_name
+    st = res.stages
+    rep["stages"] = {k: st.get(k) for k in ("init", "traj", "grasp", "exec")}
+    rep["end_to_end"] = bool(all(st.get(k) for k in ("init", "traj", "grasp", "exec")))
+    rep["total_time_s"] = round(time.perf_counter() - t_all, 1)
+    atomic_write_json(out / "summary.json", _jsonable(rep))
+    return rep
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return x
