@@ -105,10 +105,11 @@ def part_sdf(
         lab, _ = ndimage.label(free)
         border = np.unique(np.concatenate([lab[[0, -1]].ravel(), lab[:, [0, -1]].ravel(), lab[:, :, [0, -1]].ravel()]))
         outside = np.isin(lab, border[border > 0])
-        # grow the outside back over the band r_s < d <= r_close (a few cells, so it cannot leak
-        # far through a gap of the sampled surface)
-        steps = int(np.ceil((r_close - r_s) / h)) + 1
-        outside = ndimage.binary_dilation(outside, iterations=steps, mask=d > r_s)
+        # Give the band r_s < d <= r_close back to the outside where it lies next to it: a cell at
+        # distance d from the points, outside, has free space about r_close - d away; a cell at
+        # depth z under a gap of the sampled surface is about z + r_close away from it.
+        e_out = ndimage.distance_transform_edt(~outside) * h
+        outside |= (d > r_s) & (e_out <= (r_close - d) + 1.5 * h)
         values.append(np.where(outside, d - r_s, -np.abs(d - r_s)))
         radii.append(r_s)
     return PartSDF(values=jnp.asarray(np.stack(values), jnp.float32), origin=jnp.asarray(lo, jnp.float32),
@@ -203,7 +204,7 @@ def robot_proxy(robot: YumiModel, sample_spacing: float = 0.01, pad_capsules: in
             off = np.zeros(3)
             off[a_mid] = -half[a_mid] + (2 * j + 1) * w
             e = np.zeros(3)
-            e[a_long] = max(half[a_long] - 0.5 * r, 0.0)
+            e[a_long] = max(half[a_long] - r, 0.0)  # the round ends reach the pad's ends
             link.append(li), p0.append(c + off - e), p1.append(c + off + e), rad.append(r)
             names.append(f"{n}_{j}")
             arm.append(0 if LINK_NAMES[li].startswith("gripper_r") else 1)

@@ -46,9 +46,11 @@ from ._lm import LMResult, SolverConfig, TerminationConfig, TrustRegionConfig, s
 ARM_NAMES = ("right", "left")
 """Arm index 0 = right (joints 0..6, gripper 14), 1 = left (7..13, 15)."""
 
-STAGES = ("grasp_invalid", "grasp_collision", "solver", "pose_error", "joint_limits", "collision", "approach")
+STAGES = ("grasp_invalid", "grasp_collision", "unsolved", "solver", "pose_error", "joint_limits", "collision",
+          "approach")
 """Rejection stages, in the order they are applied (``grasp_collision``: the free-floating
-gripper at the grasp poses along the trajectory hits the table or a part at every seating depth)."""
+gripper at the grasp poses along the trajectory hits the table or a part at every seating depth;
+``unsolved``: seated grasps beyond ``PlanConfig.max_candidates``, lowest scores)."""
 
 
 class PlanResult(eqx.Enumeration):
@@ -111,10 +113,13 @@ class PlanConfig(eqx.Module):
     """Ball radius around each part point in the object proxy (m); None = from the point spacing."""
     sample_spacing: float = 0.01
     """Largest spacing of the samples along each robot capsule's axis in the object check (m)."""
-    grasp_depths: tuple[float, ...] = (0.0, 0.004, 0.008, 0.012)
+    grasp_depths: tuple[float, ...] = (0.0, 0.004, 0.008, 0.012, 0.016)
     """Seating: each grasp is backed off along its approach axis by the smallest of these depths
     (m) at which the free-floating gripper clears the table and the parts at every keyframe (the
     pads reach 20 mm past the TCP, so the contact stays on the pad)."""
+    max_candidates: int = 480
+    """Grasp candidates solved per part and arm: the seated ones (see ``grasp_depths``), best
+    grasp score first (RSRD solves 480)."""
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
     approach_steps: int = 6
@@ -123,8 +128,10 @@ class PlanConfig(eqx.Module):
     """Best trajectory candidates (by cost) whose approach is solved."""
     top_k_per_arm: int = 4
     """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves)."""
-    grasp_config: GraspConfig = GraspConfig()
-    """Antipodal grasp sampling when grasps are not given."""
+    grasp_config: GraspConfig = GraspConfig(num_grasps=32)
+    """Antipodal grasp sampling when grasps are not given. More base grasps than RSRD's 10: most
+    are removed by seating (e.g. grasps in the middle of a plate put the palm into it), and
+    ``max_candidates`` caps what is solved."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -312,7 +319,7 @@ def _run_candidates(
 
 
 def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True,
-            seated: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+            seated: np.ndarray | None = None, solved: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Apply the stages in order; returns the surviving mask and counts rejected per stage
     (collisions only when ``collision``; ``seated`` = the free gripper clears everything)."""
     counts = {}
@@ -321,6 +328,9 @@ def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = Tru
     seated = np.ones_like(alive) if seated is None else seated
     counts["grasp_collision"] = int((alive & ~seated).sum())
     alive &= seated
+    solved = np.ones_like(alive) if solved is None else solved
+    counts["unsolved"] = int((alive & ~solved).sum())
+    alive &= solved
     ok = np.isfinite(b.cost) & np.all(np.isfinite(b.q), axis=(1, 2))
     counts["solver"] = int((alive & ~ok).sum())
     alive &= ok
@@ -528,6 +538,7 @@ def plan_robot(
         # only grasps that are valid and seat without collision are solved (the rest keep NaN
         # joints / infinite errors and are counted at their own stage)
         sel = np.nonzero(valid & seated)[0]
+        sel = np.sort(sel[np.argsort(-np.asarray(g.score)[sel], kind="stable")][: config.max_candidates])
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
                    pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
@@ -541,7 +552,9 @@ def plan_robot(
                 full[sel] = part
         # Bimanual: the other arm is still at home here, so collisions are checked after the
         # joint 16-DoF solve only.
-        alive, counts = _reject(b, valid, config, collision=not config.bimanual, seated=seated)
+        solved = np.zeros(n, bool)
+        solved[sel] = True
+        alive, counts = _reject(b, valid, config, collision=not config.bimanual, seated=seated, solved=solved)
         return b, alive, counts, target
 
     best = None
@@ -599,6 +612,8 @@ def plan_robot(
         res, msg = {
             "joint_limits": (PlanResult.joint_limits, "all tracking candidates violate joint limits"),
             "collision": (PlanResult.collision, "all remaining candidates collide along the trajectory"),
+            "grasp_collision": (PlanResult.collision, "at every grasp the gripper itself hits the table or the "
+                                                      "object along the trajectory (at every seating depth)"),
             "approach": (PlanResult.approach, "no remaining candidate has a collision-free approach"),
         }.get(last_stage, (PlanResult.unreachable,
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
