@@ -104,6 +104,25 @@ def test_wrong_part_fails_at_grasp_stage(stapler, gt_plan):
     assert r.metrics["grasp"]["pads_touching"] == {"right": [True, True], "left": [False, False]}
 
 
+
+def test_off_centre_pinch_on_a_welded_part(stapler, gt_plan):
+    """With the root welded the hinged arm cannot shift along the jaw axis, so the coupled jaw
+    stalls on the first finger: 4 mm off-centre leaves a ~2 mm gap at the other finger (a pinch,
+    within pad_gap; the soft contacts and hinge absorb the rest), 8 mm leaves > 5 mm (no pinch)."""
+    obj = load_sim_object(stapler)
+    from rsrd_jax.sim._scene import _mat
+
+    jaw_axis = _mat(gt_plan.tcp_target[0, 0])[:3, 0]  # right arm's TCP x at the grasp
+    cfg = SimConfig(root="weld")
+    near = simulate_plan(oracle_plan(obj, grasp_offset=0.004 * jaw_axis), obj, cfg, progress=False)
+    assert near.stages["grasp"], near.reasons
+    gaps = sorted(near.metrics["grasp"]["pad_gap_mm"]["right"])
+    assert gaps[0] <= 0.0 and 0.5 < gaps[1] <= 3.0
+    far = simulate_plan(oracle_plan(obj, grasp_offset=0.008 * jaw_axis), obj, cfg, progress=False)
+    assert far.stages["grasp"] is False and "mm away" in far.reasons["grasp"]
+    assert max(far.metrics["grasp"]["pad_gap_mm"]["right"]) > 5.0
+
+
 def test_failed_or_colliding_plan_is_reported_not_executed(stapler, gt_plan):
     failed = dataclasses.replace(gt_plan, result="collision", message="every candidate collided")
     r = simulate_plan(failed, stapler, progress=False)

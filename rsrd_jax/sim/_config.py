@@ -15,6 +15,10 @@ class SuccessConfig(eqx.Module):
     the start of the motion and any later step while held."""
     slip_rotation_deg: float = 20.0
     """Grasp: largest allowed change (degrees) of the grasped part's orientation in the TCP frame."""
+    pad_gap: float = 0.003
+    """Grasp: when the motion starts one pad must press on the intended part and the other be
+    within this distance (m) of it (the coupled jaw stalls on the first finger when the part
+    cannot shift sideways and the grasp is slightly off-centre)."""
     min_jaw: float = 0.001
     """Grasp: the jaw must stay at least this open (m) on the part; a shut jaw whose fingertips
     press on a surface is not a pinch."""

@@ -419,6 +419,9 @@ def simulate_plan(
         run.hold(qa[-1], 0.1)
         grip_width = 2 * d.qpos[scene.robot_qpos[14 + arms]]
         pads0 = run.pad_contacts()
+        # gap of each pad to the arm's intended part (negative = penetration)
+        gaps = {a: [min(mujoco.mj_geomDistance(m, d, int(scene.pad_geoms[a, f]), int(h), 0.05, None)
+                        for h in scene.part_geoms[part[a]]) for f in range(2)] for a in arms}  # fmt: skip
         T_tcp0, T_part0 = scene.tcp_poses(), scene.part_poses()
         rel0 = {a: np.linalg.inv(T_part0[part[a]]) @ T_tcp0[a] for a in arms}
         # follow the plan
@@ -463,16 +466,22 @@ def simulate_plan(
             sp, sr = max(sp, e_p), max(sr, e_r)
         slip_p[a], slip_r[a] = sp, sr
         held[a] = float(np.mean(rec_pads[lo:hi, a].all(-1))) if hi > lo else 0.0
-    # both pads on the part with the jaw open: a pinch (closed fingers pressing on a surface
-    # with their tips would touch it with both pads too)
+    # a pinch: both pads at the part (one pressing, the other within pad_gap: the coupled jaw stalls
+    # on the first finger when the part cannot shift sideways, e.g. a welded root or a hinge along
+    # the jaw axis, and a slightly off-centre grasp leaves a gap at the other) with the jaw open
+    # (shut fingers pressing on a surface with their tips touch it with both pads too)
     jaw = {a: float(w) for a, w in zip(arms, grip_width)}
-    touching = {a: bool(pads0[a].all()) and jaw[a] >= sc.min_jaw for a in arms}
+    near = {a: np.array([pads0[a][f] or gaps[a][f] <= sc.pad_gap for f in range(2)]) for a in arms}
+    touching = {a: bool(pads0[a].any() and near[a].all()) and jaw[a] >= sc.min_jaw for a in arms}
     why = []
     for a in arms:
         name = ("right", "left")[a]
         if not touching[a]:
-            which = [f for f, t in zip(("finger_r", "finger_l"), pads0[a]) if not t]
+            which = [f"{f} ({1000 * g:.1f} mm away)" for f, t, g in zip(("finger_r", "finger_l"), near[a], gaps[a])
+                     if not t]  # fmt: skip
             what = f"{', '.join(which)} not touching part {part[a]}" if which else f"jaw shut on part {part[a]}"
+            if not pads0[a].any() and not which:
+                what = f"no pad touching part {part[a]}"
             why.append(f"{name} gripper: {what} when the motion starts (jaw {1000 * jaw[a]:.1f} mm)")
         elif slip_p[a] > sc.slip_position or slip_r[a] > np.deg2rad(sc.slip_rotation_deg):
             why.append(f"{name} gripper: part {part[a]} slipped {1000 * slip_p[a]:.1f} mm / "
@@ -482,7 +491,7 @@ def simulate_plan(
         why.insert(0, f"object disturbed by {1000 * disturbed:.1f} mm before the grasp (transit/approach contact)")
     stages["grasp"] = not why
     reasons["grasp"] = "; ".join(why) if why else (
-        "both pads on the intended part(s); max slip " +
+        "pinch on the intended part(s); max slip " +
         ", ".join(f"{1000 * slip_p[a]:.1f} mm/{np.rad2deg(slip_r[a]):.1f}°" for a in arms))  # fmt: skip
 
     # ---------------- Exec
@@ -520,6 +529,7 @@ def simulate_plan(
     sim_t = float(d.time)
     metrics.update({
         "grasp": {"pads_touching": {("right", "left")[a]: pads0[a].tolist() for a in arms},
+                  "pad_gap_mm": {("right", "left")[a]: [round(1000 * g, 2) for g in gaps[a]] for a in arms},
                   "jaw_mm": {("right", "left")[a]: round(1000 * float(w), 2) for a, w in zip(arms, grip_width)},
                   "slip_mm": {("right", "left")[a]: round(1000 * slip_p[a], 2) for a in arms},
                   "slip_deg": {("right", "left")[a]: round(float(np.rad2deg(slip_r[a])), 2) for a in arms},
