@@ -93,19 +93,66 @@ def cmd_studio(a: argparse.Namespace) -> int:
 
 
 def cmd_demo(a: argparse.Namespace) -> int:
-    """The end-to-end demo on one embedded studio object (stages land one by one)."""
-    from .studio import StudioConfig, make_object
-    from .viz import log_studio, studio_contact_sheet
+    """The whole pipeline on one embedded studio object: scan → model → track → register → plan →
+    simulate, with each stage's result and time."""
+    from .pipeline import PipelineConfig, run_pipeline
 
     out = Path(a.out)
-    t0 = time.perf_counter()
-    print(f"[1/1] studio: making {a.object!r} (scan, demo video, robot view) ...")
-    meta = make_object(a.object, out / "studio", StudioConfig(seed=a.seed), overwrite=True)
-    print(_summary(meta, out / "studio"))
-    sheet = studio_contact_sheet(out / "studio", out / "contact_sheet.png")
-    rrd = log_studio(out / "studio", out / "demo.rrd")
-    print(f"contact sheet: {sheet}\nrerun recording: {rrd}  (view with `rerun {rrd}`)")
-    print(f"demo finished in {time.perf_counter() - t0:.1f} s")
+    cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, robot_yaw_deg=a.robot_yaw, rerun=not a.no_rerun)
+    print(f"rsrd-jax demo: {a.object!r} end to end -> {out}  (stages: studio, build, track, register, plan, simulate)")
+    rep = run_pipeline(a.object, out, cfg, log=lambda m: print(m, flush=True))
+    print("\nstage     time      result")
+    for k in ("studio", "build", "track", "register", "plan", "simulate"):
+        r = rep.get(k, {})
+        print(f"{k:9s} {r.get('time_s', 0):6.1f} s  {r.get('summary', '')}")
+    st = rep["stages"]
+    print("paper stages (Table 1): " + ", ".join(f"{k} {'ok' if v else ('-' if v is None else 'FAILED')}" for k, v in st.items()))
+    print(f"end to end: {'SUCCESS' if rep['end_to_end'] else 'failure'} in {rep['total_time_s']:.0f} s")
+    sim = rep["simulate"].get("outputs", {})
+    for k in ("mp4", "rrd"):
+        if k in sim:
+            print(f"  simulated robot {k}: {sim[k]}")
+    print(f"  summary: {out / 'summary.json'}")
+    return 0
+
+
+def cmd_register(a: argparse.Namespace) -> int:
+    """Registers the object in the robot frame from a robot-view RGB + metric depth."""
+    import numpy as np
+
+    from .io import ArtefactError, atomic_write_json
+    from .parts import load_object_model
+    from .track import InitConfig
+    from .track import read_robot_view, register_object, registration_error
+
+    out = Path(a.out)
+    if (out / "registration.json").exists() and not a.overwrite:
+        print(f"error: {out / 'registration.json'} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    try:
+        model = load_object_model(a.model)
+        view = read_robot_view(a.view)
+        reg = register_object(model, view, InitConfig(yaw_seeds=a.yaw_seeds, iters=a.iters, refine_iters=0,
+                                                       lr_start=2e-2, lr_end=2e-3))  # fmt: skip
+    except ArtefactError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    rec = {"T_robot_obj": reg.T_robot_obj.tolist(), "T_cam_obj": reg.T_cam_obj.tolist(), "loss": reg.loss,
+           "depth_residual_mm": reg.depth_residual_mm, "info": reg.info}  # fmt: skip
+    gt_path = Path(a.view) / "gt.json" if (Path(a.view) / "gt.json").is_file() else Path(a.view) / "robot_view" / "gt.json"
+    if gt_path.is_file():
+        from .plan import read_robot_object_pose
+
+        pts = np.concatenate([np.asarray(model.part_points(k)) for k in range(model.num_parts)])
+        rec["error_vs_studio_gt"] = registration_error(reg.T_robot_obj, read_robot_object_pose(gt_path), pts)
+    atomic_write_json(out / "registration.json", rec)
+    print(f"registration -> {out / 'registration.json'} in {reg.info['time_s']:.1f} s")
+    print(f"  T_robot_obj (wxyz_xyz): {np.round(reg.T_robot_obj, 4).tolist()}")
+    print(f"  depth residual {reg.depth_residual_mm:.1f} mm over {reg.info['silhouette_pixels']} pixels")
+    if "error_vs_studio_gt" in rec:
+        e = rec["error_vs_studio_gt"]
+        print(f"  error vs studio ground truth: {e['translation_mm']:.1f} mm, {e['rotation_deg']:.2f}°, ADD {e['add_mm']:.1f} mm")
+    print(f"  use with: rsrd-jax plan MODEL TRAJ --object-pose {' '.join(f'{v:.6f}' for v in reg.T_robot_obj)} ...")
     return 0
 
 
@@ -200,6 +247,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     """Plans the YuMi trajectory (parts, arms, grasps, joints) and writes the RobotPlan."""
     import numpy as np
 
+    from .grasp import GraspConfig
     from .io import save_plan
     from .plan import PlanConfig, plan_robot, studio_plan_inputs
     from .robot import load_yumi
@@ -236,7 +284,8 @@ def cmd_plan(a: argparse.Namespace) -> int:
         num_keyframes=a.keyframes, bimanual=a.bimanual, parts=tuple(a.parts) if a.parts else None,
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
-        hand_tolerance=a.hand_tolerance,
+        hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
+        grasp_config=GraspConfig(num_grasps=a.grasps),
     )  # fmt: skip
     t0 = time.perf_counter()
     robot = load_yumi()
@@ -318,11 +367,23 @@ def build_parser() -> argparse.ArgumentParser:
     _add_studio_options(mk)
     st.set_defaults(func=cmd_studio)
 
-    dm = sub.add_parser("demo", help="run the pipeline end to end on an embedded studio object")
+    dm = sub.add_parser("demo", help="run the whole pipeline end to end on an embedded studio object")
     dm.add_argument("--object", default="red_box", help="studio object")
     dm.add_argument("--out", default="demo_out", help="output directory")
-    dm.add_argument("--seed", type=int, default=0)
+    dm.add_argument("--seed", type=int, default=0, help="studio seed")
+    dm.add_argument("--frames", type=int, default=30, help="demo video frames")
+    dm.add_argument("--robot-yaw", type=float, default=None, help="object yaw on the robot's table (degrees)")
+    dm.add_argument("--no-rerun", action="store_true", help="skip the rerun recordings and overlay video")
     dm.set_defaults(func=cmd_demo)
+
+    rg = sub.add_parser("register", help="register the object in the robot frame from a robot-view RGB-D image")
+    rg.add_argument("model", help="ObjectModel directory (from `rsrd-jax build`)")
+    rg.add_argument("view", help="robot view directory (rgb.png, depth.png in mm, camera.json with T_robot_cam)")
+    rg.add_argument("--out", required=True, help="output directory (registration.json)")
+    rg.add_argument("--yaw-seeds", type=int, default=16, help="yaw seeds over 360°")
+    rg.add_argument("--iters", type=int, default=50, help="Adam iterations per seed and for the refinement")
+    rg.add_argument("--overwrite", action="store_true", help="replace an existing registration")
+    rg.set_defaults(func=cmd_register)
 
     tr = sub.add_parser("track", help="track every part of an ObjectModel through a demo video (4D-DPM)")
     tr.add_argument("model", help="ObjectModel directory (from `rsrd-jax build`)")
@@ -387,6 +448,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--chunk", type=int, default=160, help="grasp candidates per vmapped solve")
     pl.add_argument("--max-iterations", type=int, default=50, help="LM iterations per solve")
     pl.add_argument("--approach", type=float, default=0.06, help="pre-grasp offset along the gripper axis (m)")
+    pl.add_argument("--approach-steps", type=int, default=6, help="waypoints of the approach segment")
+    pl.add_argument("--grasps", type=int, default=32,
+                    help="base antipodal grasps per part (x 2 signs x 8 rolls x 3 shifts candidates)")  # fmt: skip
+    pl.add_argument("--max-candidates", type=int, default=480, help="seated grasp candidates solved per part and arm")
     pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
     pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,

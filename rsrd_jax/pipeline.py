@@ -4,6 +4,7 @@ Used by `rsrd-jax demo` and `experiments/robot_trials.py`. Every stage reads the
 artefact from disk (as the separate CLI commands do) and writes its own under `out/`:
 
     out/studio/      scan, demo video, robot view, MJCF, ground truth (MuJoCo renders)
+    out/contact_sheet.png, out/studio.rrd   what the studio made
     out/model/       ObjectModel (+ build.rrd)
     out/track/       PartTrajectory (+ overlay.mp4, track.rrd)
     out/register/    registration.json (estimate, error against the studio's ground truth)
@@ -154,6 +155,11 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
             meta = make_object(object_name, studio_dir, StudioConfig(
                 seed=cfg.seed, scan_views=cfg.scan_views, scan_size=cfg.scan_size, demo_frames=cfg.demo_frames,
                 demo_size=cfg.demo_size, robot_object_yaw_deg=cfg.robot_yaw_deg), overwrite=True)  # fmt: skip
+            from .viz import log_studio, studio_contact_sheet
+
+            rep["studio"]["contact_sheet"] = str(studio_contact_sheet(studio_dir, out / "contact_sheet.png"))
+            if cfg.rerun:
+                rep["studio"]["rerun"] = str(log_studio(studio_dir, out / "studio.rrd"))
             prod = meta.get("products", {})
             rep["studio"]["summary"] = (f"{len(meta.get('parts', []))} parts, {prod.get('demo', {}).get('frames')} demo frames, "
                                         f"robot-view yaw {prod.get('robot_view', {}).get('yaw_deg')}°")  # fmt: skip
@@ -194,8 +200,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     pts = [np.asarray(model.part_points(k)) for k in range(model.num_parts)]
     add = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"][: traj.num_frames], pts)
     rep.setdefault("track", {}).update(
-        add_obj_mm=[round(x, 2) for x in add["add_obj_mm"]], add_obj_mean_mm=round(add["add_obj_mean_mm"], 2),
-        add_cam_mean_mm=round(add["add_mean_mm"], 2), frames=traj.num_frames,
+        add_obj_mm=[round(x, 2) for x in add["add_obj_mm"]], add_obj_mean_mm=round(add["mean_add_obj_mm"], 2),
+        add_cam_mean_mm=round(add["mean_add_mm"], 2), frames=traj.num_frames,
         frames_per_second=traj.meta.get("frames_per_second"), timings_s=traj.meta.get("timings_s"),
     )  # fmt: skip
     rep["track"]["summary"] = f"ADD (object frame) per part {rep['track']['add_obj_mm']} mm"
