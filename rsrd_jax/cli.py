@@ -138,7 +138,7 @@ def cmd_register(a: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     rec = {"T_robot_obj": reg.T_robot_obj.tolist(), "T_cam_obj": reg.T_cam_obj.tolist(), "loss": reg.loss,
-           "depth_residual_mm": reg.depth_residual_mm, "info": reg.info}  # fmt: skip
+           "residual_mm": reg.residual_mm, "info": reg.info}  # fmt: skip
     gt_path = Path(a.view) / "gt.json" if (Path(a.view) / "gt.json").is_file() else Path(a.view) / "robot_view" / "gt.json"
     if gt_path.is_file():
         from .plan import read_robot_object_pose
@@ -148,7 +148,7 @@ def cmd_register(a: argparse.Namespace) -> int:
     atomic_write_json(out / "registration.json", rec)
     print(f"registration -> {out / 'registration.json'} in {reg.info['time_s']:.1f} s")
     print(f"  T_robot_obj (wxyz_xyz): {np.round(reg.T_robot_obj, 4).tolist()}")
-    print(f"  depth residual {reg.depth_residual_mm:.1f} mm over {reg.info['silhouette_pixels']} pixels")
+    print(f"  residual {reg.residual_mm:.1f} mm (median distance of the {reg.info['blob_pixels']} observed object points to the model)")
     if "error_vs_studio_gt" in rec:
         e = rec["error_vs_studio_gt"]
         print(f"  error vs studio ground truth: {e['translation_mm']:.1f} mm, {e['rotation_deg']:.2f}°, ADD {e['add_mm']:.1f} mm")
