@@ -260,6 +260,7 @@ def test_bimanual_plan_couples_both_arms(robot):
     assert gap < 0.3  # approach stays on the trajectory's null-space branch
 
 
+@pytest.mark.slow
 def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     """`rsrd-jax plan MODEL TRAJ --object-pose ...` on a one-part cube model and a written
     trajectory: grasps are sampled on the model's Gaussians, the plan tracks
@@ -291,8 +292,8 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     ), tmp_path / "traj")  # fmt: skip
     out = tmp_path / "plan"
     rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
-               "--out", str(out), "--keyframes", "4", "--chunk", "64", "--max-iterations", "40", "--hands", "none",
-               "--rerun"])  # fmt: skip
+               "--out", str(out), "--keyframes", "4", "--chunk", "8", "--max-iterations", "40", "--hands", "none",
+               "--grasps", "2", "--approach-steps", "4", "--rerun"])  # fmt: skip
     plan = load_plan(out)
     assert rc == 0 and plan.success, plan.info
     k = int(plan.part[plan.active][0])
@@ -353,7 +354,7 @@ def test_robot_proxy_pads_cover_finger_pads(robot):
 
     proxy = robot_proxy(robot)
     kind = np.asarray(proxy.kind)
-    assert (kind == 2).sum() == 12 and (kind == 1).sum() == 2
+    assert (kind == 2).sum() == 16 and (kind == 1).sum() == 2
     m = robot.mj_model
     gi = m.geom("pad_r_finger_r").id
     c, half = np.asarray(m.geom_pos[gi]), np.asarray(m.geom_size[gi])

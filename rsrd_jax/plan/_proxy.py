@@ -13,8 +13,8 @@ query outside the grid adds its distance to the grid (the grid extends ``margin`
 points, so outside it nothing collides).
 
 The robot side is a list of capsules: the MJCF link capsules, except that each finger capsule
-(which over-covers the finger by ~1 cm towards the jaw, cuRobo's spheres) is replaced by three
-thin capsules covering the finger's contact pad box, the geometry the simulator grasps with.
+(which over-covers the finger by ~1 cm towards the jaw, cuRobo's spheres) is replaced by four
+thin capsules covering the finger's contact pad box (1 mm over-cover), the geometry the simulator grasps with.
 The distance of a capsule to a part is the minimum of the grid distance over points spaced at
 most ``sample_spacing`` along its axis, minus its radius (the grid distance is 1-Lipschitz, so
 the error is below half the spacing, and far smaller near smooth surfaces).
@@ -60,9 +60,10 @@ def part_sdf(
         part_points: P arrays (n_k, 3) of surface points in the part frames (m).
         spacing: grid node spacing (m); coarsened if the grids would exceed ``max_nodes`` nodes.
         margin: the grid extends this far beyond each part's points (m).
-        radius: ball radius r_s around every point (m); None = 0.6 × the 90th percentile of
-            nearest-neighbour spacing (at least 1.5 mm), so that the balls close the sampled
-            surface.
+        radius: ball radius r_s around every point (m); None = half the median nearest-neighbour
+            spacing (at least 0.5 mm): about the mean distance from a surface location to its
+            nearest sample. Gaps of the sampling are closed separately (``r_close``, 2.5 × the
+            99th percentile spacing) when labelling the interior.
         max_nodes: cap on the total number of grid nodes.
 
     Returns:
@@ -96,10 +97,10 @@ def part_sdf(
         tree = cKDTree(p)
         nn = tree.query(p, k=2)[0][:, 1] if len(p) > 1 else np.zeros(1)
         if radius is None:
-            r_s = max(0.6 * float(np.percentile(nn, 90)), 0.0015)
+            r_s = max(0.5 * float(np.median(nn)), 0.0005)
         else:
             r_s = float(radius)
-        r_close = max(2.5 * float(np.percentile(nn, 99)) if radius is None else 2.0 * r_s, 1.5 * h)
+        r_close = max(2.5 * float(np.percentile(nn, 99)), 2.0 * r_s, 1.5 * h)
         d = tree.query(rel + lo[k], workers=-1)[0].reshape(shape)
         free = d > r_close
         lab, _ = ndimage.label(free)
@@ -162,7 +163,7 @@ class RobotProxy(eqx.Module):
     """Names (MJCF capsule name, or ``pad_<side>_<finger>_<i>``)."""
 
 
-def robot_proxy(robot: YumiModel, sample_spacing: float = 0.01, pad_capsules: int = 3) -> RobotProxy:
+def robot_proxy(robot: YumiModel, sample_spacing: float = 0.01, pad_capsules: int = 4) -> RobotProxy:
     """Capsules of :class:`RobotProxy` from the loaded YuMi: every MJCF collision capsule of the
     arms and gripper bases, and for each finger ``pad_capsules`` capsules along the finger (z) that
     cover its pad box (instead of the finger's over-covering query capsule).

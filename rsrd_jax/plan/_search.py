@@ -113,10 +113,11 @@ class PlanConfig(eqx.Module):
     """Ball radius around each part point in the object proxy (m); None = from the point spacing."""
     sample_spacing: float = 0.01
     """Largest spacing of the samples along each robot capsule's axis in the object check (m)."""
-    grasp_depths: tuple[float, ...] = (0.0, 0.004, 0.008, 0.012, 0.016)
+    grasp_depths: tuple[float, ...] = (0.0, 0.004, 0.008, 0.012, 0.016, 0.019)
     """Seating: each grasp is backed off along its approach axis by the smallest of these depths
-    (m) at which the free-floating gripper clears the table and the parts at every keyframe (the
-    pads reach 20 mm past the TCP, so the contact stays on the pad)."""
+    (m) at which the free-floating gripper clears the table and the parts at every keyframe. The
+    pads reach 20 mm past the TCP, so the contact line stays on the pad; deep back-offs are
+    fingertip grasps (flat parts on the table, parts next to other parts)."""
     max_candidates: int = 480
     """Grasp candidates solved per part and arm: the seated ones (see ``grasp_depths``), best
     grasp score first (RSRD solves 480)."""
