@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ..geometry import Camera
 from ._composite import ChunkLayout, composite, composite_stats
 from ._gaussians import Gaussians
-from ._project import Projected, project_gaussians
+from ._project import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD, Projected, project_gaussians
 
 _trace_count = 0  # incremented each time `render` is traced (tests check it stays put)
 
@@ -176,14 +176,12 @@ def _ellipse_meets_tile(proj: Projected, g, tx, ty, ts: int):
     return smin <= thr * (1.0 + 1e-3) + 1e-3
 
 
-def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins:
-    """Per-tile near-to-far lists of the Gaussians whose boxes overlap each tile, cut into
-    chunks (no gradient). See the module docstring."""
-    proj = jax.lax.stop_gradient(proj)
-    ts, B, K, NC, M = config.tile_size, config.chunk_size, config.capacity, config.max_chunks, config.max_pairs
+def _sorted_pairs(proj: Projected, camera: Camera, ts: int, M: int):
+    """(Gaussian, tile) pairs grouped by tile, near to far inside each tile: returns the
+    Gaussian of every depth-ordered slot `g` (M,), the slot of every sorted entry `slot` (M,),
+    tile start offsets `bounds` (tiles + 1,) into the sorted entries, and the total pair count."""
     TX, TY = _grid(camera, ts)
     n_tiles = TX * TY
-    n = proj.depth.shape[0]
     u, v = proj.xy[:, 0], proj.xy[:, 1]
     ex, ey = proj.extent[:, 0], proj.extent[:, 1]
 
@@ -220,6 +218,16 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins
             q = jnp.arange(n_tiles + 1, dtype=jnp.int64) << 32
             bounds = jnp.searchsorted(skey, q).astype(jnp.int32)
             slot = (skey & 0xFFFFFFFF).astype(jnp.int32)
+    return g, slot, bounds, total
+
+
+def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins:
+    """Per-tile near-to-far lists of the Gaussians whose boxes overlap each tile, cut into
+    chunks (no gradient). See the module docstring."""
+    proj = jax.lax.stop_gradient(proj)
+    ts, B, K, NC, M = config.tile_size, config.chunk_size, config.capacity, config.max_chunks, config.max_pairs
+    n = proj.depth.shape[0]
+    g, slot, bounds, total = _sorted_pairs(proj, camera, ts, M)
     counts = (bounds[1:] - bounds[:-1]).astype(jnp.int32)
 
     # Chunks: tile t owns ⌈min(count, K)/B⌉ consecutive chunks.
@@ -342,12 +350,50 @@ def render(
     )
 
 
-_bin_jit = jax.jit(bin_gaussians, static_argnums=2)
+_pairs_jit = jax.jit(_sorted_pairs, static_argnums=(2, 3))
 _project_jit = jax.jit(project_gaussians)
 
 
 def _round_up(x: float, m: int) -> int:
     return int(max(m, m * math.ceil(x / m)))
+
+
+def _walked_entries(proj: Projected, g, slot, bounds, TX: int, ts: int, block: int = 128) -> np.ndarray:
+    """Host-side (numpy, float64) count per tile of the list entries its pixels walk before
+    gsplat's transmittance stop, plus one entry of margin for float32 rounding in `render`.
+    Same rules as the compositor: α = min(MAX_ALPHA, o·e^(−σ)), kept if α ≥ ALPHA_THRESHOLD, a
+    pixel walks entry k while the transmittance before it, Σ_{j<k} log(1 − α_j), is above the
+    stop. Tiles are processed in blocks so memory stays at block × K × P."""
+    xy = np.asarray(proj.xy, np.float64)
+    conic = np.asarray(proj.conic, np.float64)
+    opac = np.asarray(proj.opacity, np.float64)
+    bounds = np.asarray(bounds)
+    counts = np.diff(bounds)
+    gid_sorted = np.asarray(g)[np.asarray(slot)[: max(int(bounds[-1]), 1)]]
+    n_tiles = counts.shape[0]
+    r = np.arange(ts) + 0.5
+    py, px = np.meshgrid(r, r, indexing="ij")
+    px, py = px.reshape(-1), py.reshape(-1)
+    log_stop = math.log(TRANSMITTANCE_THRESHOLD)
+    out = np.zeros(n_tiles, np.int64)
+    for t0 in range(0, n_tiles, block):
+        t = np.arange(t0, min(t0 + block, n_tiles))
+        kd = int(counts[t].max())
+        if kd == 0:
+            continue
+        k = np.arange(kd)
+        mask = k[None, :] < counts[t][:, None]
+        gid = gid_sorted[np.minimum(bounds[t][:, None] + k[None, :], gid_sorted.shape[0] - 1)]
+        dx = (t % TX * ts)[:, None, None] + px[None, None, :] - xy[gid, 0][..., None]
+        dy = (t // TX * ts)[:, None, None] + py[None, None, :] - xy[gid, 1][..., None]
+        a, b, c = (conic[gid, i][..., None] for i in range(3))
+        sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+        alpha = np.minimum(MAX_ALPHA, np.where(mask, opac[gid], 0.0)[..., None] * np.exp(-sigma))
+        l = np.where(alpha >= ALPHA_THRESHOLD, np.log1p(-alpha), 0.0)
+        excl = np.cumsum(l, axis=1) - l
+        walked = np.sum((excl > log_stop) & mask[..., None], axis=1).max(axis=-1)
+        out[t] = np.minimum(walked + 1, counts[t])
+    return out
 
 
 def choose_config(
@@ -360,12 +406,12 @@ def choose_config(
 ) -> RenderConfig:
     """Host-side choice of the static budgets (K, chunks, pairs) for a scene and its cameras.
 
-    Renders each camera once with budgets large enough to be exact and measures, per tile, how
-    many list entries the pixels walk before the transmittance stop (`exact=False`: the smallest
-    K that renders these views exactly) or how many candidates there are (`exact=True`: no list
-    is ever cut). K is that maximum times `headroom` (for poses that move), rounded up to a
-    multiple of `chunk_size`; `max_chunks` and `max_pairs` are the largest totals times
-    `headroom`.
+    Bins each camera once (jitted; compiled once per image size and N) and measures on the host,
+    per tile, how many list entries the pixels walk before the transmittance stop
+    (`exact=False`: the smallest K that renders these views exactly, plus one entry for rounding)
+    or how many candidates there are (`exact=True`: no list is ever cut). K is that maximum
+    times `headroom` (for poses that move), rounded up to a multiple of `chunk_size`;
+    `max_chunks` and `max_pairs` are the largest totals times `headroom`.
 
     Args:
         gaussians: the posed Gaussians (world frame).
@@ -383,21 +429,25 @@ def choose_config(
     need_k, need_m, all_counts = B, 1, []
     for cam in cameras:
         proj = _project_jit(gaussians, cam)
-        budget = _round_up(4 * gaussians.num_gaussians, 1024)
+        TX, TY = _grid(cam, tile_size)
+        # Pair count on the host (float64 boxes; the device count is checked below), so that
+        # the pair sort compiles once, for a power-of-two budget shared by similar scenes.
+        xy, ext = np.asarray(proj.xy, np.float64), np.asarray(proj.extent, np.float64)
+        lo = np.clip(np.floor((xy - ext) / tile_size), 0, [TX - 1, TY - 1])
+        hi = np.clip(np.floor((xy + ext) / tile_size), 0, [TX - 1, TY - 1])
+        host_total = int(np.sum(np.prod(hi - lo + 1, axis=-1) * np.asarray(proj.visible)))
+        budget = 1 << max(10, math.ceil(math.log2(max(host_total, 1) * 1.01)))
         while True:
-            bins = _bin_jit(proj, cam, RenderConfig(tile_size, B, B, 1, budget))
-            total = int(bins.total_pairs)
+            g, slot, bounds, total = _pairs_jit(proj, cam, tile_size, budget)
+            total = int(total)
             if total <= budget:
                 break
-            budget = _round_up(total, 1024)
-        counts = np.asarray(bins.counts)
-        kmax = _round_up(int(counts.max()) + 1, B)
-        nc = int(np.sum(-(-counts // B)))
-        cfg = RenderConfig(tile_size, B, kmax, max(nc, 1), budget, stats=True)
-        out = render(gaussians, cam, cfg)
-        if int(out.pairs_overflow) or int(out.chunks_overflow) or bool(jnp.any(out.tile_truncated)):
-            raise RuntimeError("choose_config: sizing render was not exact (internal error)")
-        k = int(counts.max() if exact else jnp.max(out.tile_needed))
+            budget = 1 << math.ceil(math.log2(total))
+        counts = np.diff(np.asarray(bounds))
+        if exact:
+            k = int(counts.max())
+        else:
+            k = int(_walked_entries(proj, g, slot, bounds, TX, tile_size).max())
         need_k, need_m = max(need_k, k), max(need_m, total)
         all_counts.append(counts)
     K = _round_up(need_k * headroom, B)
