@@ -1,5 +1,8 @@
 """Planning: sparse Levenberg–Marquardt trajectory solver, YuMi trajectory costs, grasp candidate
-search with rejection counts, approach motions and the RobotPlan (``plan_robot``).
+search with rejection counts, approach motions and the RobotPlan (``plan_robot``), with the
+collision proxies its checks use (signed-distance grids of the parts from their points, the
+robot as capsules with finger-pad capsules: ``part_sdf``, ``robot_proxy``) and a rerun recording
+of a plan (``log_plan``).
 
 Owns the generic block-banded least-squares solver used for keyframed joint trajectories. It does
 not own robot kinematics (``rsrd_jax.robot``) or grasp sampling (``rsrd_jax.grasp``).

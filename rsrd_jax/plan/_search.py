@@ -364,7 +364,8 @@ def grasp_targets(
 
 def object_geometry(part_points: Sequence[np.ndarray], boxes_per_part: int = 8, pad: float = 0.0,
                     seed: int = 0) -> ObjectGeometry:
-    """Collision proxy of an articulated object: each part's points (in its part frame) split by
+    """Box proxy of an articulated object (for the optional collision *cost*; the candidate checks
+    of :func:`plan_robot` use the tighter :func:`part_sdf` grids): each part's points split by
     k-means into up to ``boxes_per_part`` clusters, one oriented bounding box per cluster
     (``box_part`` = the part). Several boxes follow non-convex parts far more tightly than one
     (a single box of an L-shaped body swallows the neighbouring part)."""
@@ -412,11 +413,19 @@ def plan_robot(
     object frame. The TCP target of grasp g on part k is
     ``T_robot_obj · T_obj_part(t) · T_part_grasp[g]``.
 
-    Search: for each ranked part (or (left, right) pair) and arm assignment, all grasps of the
-    part are solved (single-arm problems, the other arm held near home) in vmapped chunks and
-    rejected in order by tracking error (``position_tolerance``/``rotation_tolerance_deg`` at every
-    keyframe), joint limits and collisions along the trajectory (self, table, object boxes moved
-    by the trajectory; the hand may touch its grasped part). Bimanual: the best ``top_k_per_arm``
+    Collision proxies: the parts are signed-distance grids built from their points
+    (:func:`part_sdf`), moved by the trajectory; the robot is its MJCF capsules with each finger
+    replaced by capsules over its contact pad (:func:`robot_proxy`); the finger pads may touch the
+    grasped part, the palm may not (``check_palm_on_grasped_part``).
+
+    Search: for each ranked part (or (left, right) pair) and arm assignment, every grasp is first
+    *seated*: backed off along its approach axis by the smallest of ``grasp_depths`` at which the
+    free-floating gripper (palm + pads, fingers closed to the grasp width) clears the table and
+    the parts at every keyframe; grasps that never clear are rejected (``grasp_collision``) without
+    solving. Up to ``max_candidates`` seated grasps (best score first) are solved (single-arm
+    problems, the other arm held near home) in vmapped chunks and rejected in order by tracking
+    error (``position_tolerance``/``rotation_tolerance_deg`` at every keyframe), joint limits and
+    collisions of the whole robot along the trajectory (self, table, parts). Bimanual: the best ``top_k_per_arm``
     survivors of each arm are combined into 16-DoF solves initialised from them and checked again
     (including arm-arm collisions). The best survivors by cost then get an approach segment
     (pre-grasp ``approach_distance`` behind the first grasp pose along the gripper z axis, to the
