@@ -137,7 +137,7 @@ def cmd_register(a: argparse.Namespace) -> int:
     except ArtefactError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    rec = {"T_robot_obj": reg.T_robot_obj.tolist(), "T_cam_obj": reg.T_cam_obj.tolist(), "loss": reg.loss,
+    rec = {"status": reg.status_name, "T_robot_obj": reg.T_robot_obj.tolist(), "T_cam_obj": reg.T_cam_obj.tolist(), "loss": reg.loss,
            "residual_mm": reg.residual_mm, "info": reg.info}  # fmt: skip
     gt_path = Path(a.view) / "gt.json" if (Path(a.view) / "gt.json").is_file() else Path(a.view) / "robot_view" / "gt.json"
     if gt_path.is_file():
@@ -146,7 +146,7 @@ def cmd_register(a: argparse.Namespace) -> int:
         pts = np.concatenate([np.asarray(model.part_points(k)) for k in range(model.num_parts)])
         rec["error_vs_studio_gt"] = registration_error(reg.T_robot_obj, read_robot_object_pose(gt_path), pts)
     atomic_write_json(out / "registration.json", rec)
-    print(f"registration -> {out / 'registration.json'} in {reg.info['time_s']:.1f} s")
+    print(f"registration: {reg.status_name} -> {out / 'registration.json'} in {reg.info['time_s']:.1f} s")
     print(f"  T_robot_obj (wxyz_xyz): {np.round(reg.T_robot_obj, 4).tolist()}")
     print(f"  residual {reg.residual_mm:.1f} mm (median distance of the {reg.info['blob_pixels']} observed object points to the model)")
     if "error_vs_studio_gt" in rec:
@@ -183,7 +183,7 @@ def cmd_track(a: argparse.Namespace) -> int:
         mono = OnnxDepthAnything(a.mono_depth)
     weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, rgb=a.w_rgb)
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
-                      max_gaussians=a.max_gaussians, seed=a.seed)  # fmt: skip
+                      max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
     traj = track_video(model, demo, cfg, init, occluder, mono)
     save_trajectory(traj, out)
@@ -398,6 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--steps", type=int, default=50, help="Adam steps per frame")
     tr.add_argument("--smooth-iters", type=int, default=30, help="joint smoothing iterations (0: off)")
     tr.add_argument("--max-gaussians", type=int, default=12000, help="Gaussians used for tracking")
+    tr.add_argument("--lod-cells", type=float, default=None,
+                    help="merge Gaussians per part on voxels of this fraction of an ROI feature cell (faster; default off)")  # fmt: skip
     tr.add_argument("--yaw-seeds", type=int, default=8, help="initialisation yaw seeds")
     tr.add_argument("--init-iters", type=int, default=80, help="initialisation iterations per seed")
     tr.add_argument("--distance", type=float, default=None, help="camera-object distance prior (m)")

@@ -215,7 +215,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         T_gt = read_robot_object_pose(studio_dir)
         err = registration_error(reg.T_robot_obj, T_gt, np.concatenate(pts))
         init_ok = err["translation_mm"] <= cfg.init_position_tol_m * 1e3 and err["rotation_deg"] <= cfg.init_rotation_tol_deg
-        rep["register"].update(error=err, residual_mm=reg.residual_mm, init_ok=bool(init_ok),
+        rep["register"].update(status=reg.status_name, error=err, residual_mm=reg.residual_mm, init_ok=bool(init_ok),
                                T_robot_obj=reg.T_robot_obj.tolist(), T_robot_obj_gt=np.asarray(T_gt).tolist())  # fmt: skip
         atomic_write_json(out / "register" / "registration.json", {**rep["register"], "info": reg.info})
         rep["register"]["summary"] = (f"{err['translation_mm']:.1f} mm, {err['rotation_deg']:.1f}° "

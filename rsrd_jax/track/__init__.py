@@ -40,6 +40,7 @@ from ._observe import (
 from ._register import (
     Registration as Registration,
     RegistrationError as RegistrationError,
+    RegistrationStatus as RegistrationStatus,
     RegWeights as RegWeights,
     RobotView as RobotView,
     icp_refine as icp_refine,

@@ -74,8 +74,18 @@ def read_robot_view(path: str | Path) -> RobotView:
     return RobotView(rgb=rgb, depth=depth.astype(np.float32), intrinsics=K, T_robot_cam=T)
 
 
+class RegistrationStatus(eqx.Enumeration):
+    """Outcome of `register_object`, judged without ground truth."""
+
+    ok = "the posed model explains the observed object points (residual ≤ max_residual_mm)"
+    poor_fit = "the observed object points lie far from the posed model: a wrong basin or a bad model"
+
+
 class Registration(eqx.Module):
     """Result of `register_object` (host numpy)."""
+
+    status: RegistrationStatus
+    """`ok` or `poor_fit` (from `residual_mm`)."""
 
     T_robot_obj: np.ndarray
     """(7,) object (model/scan frame) pose in the robot base frame, wxyz_xyz."""
@@ -87,12 +97,18 @@ class Registration(eqx.Module):
     """Median distance from the observed object points (the blob's metric depth) to the nearest
     posed model Gaussian centre (mm): a self-check that needs no ground truth."""
     info: dict = eqx.field(static=True)
-    """Diagnostics: seed losses, chosen seed, matches, distance prior, timings."""
+    """Diagnostics: seed losses, chosen seed, blob size, ICP statistics, timings."""
+
+    @property
+    def status_name(self) -> str:
+        """``"ok"`` or ``"poor_fit"``."""
+        return "ok" if bool(self.status == RegistrationStatus.ok) else "poor_fit"
 
 
-def _segment_object(view: RobotView, table_z: float, min_height: float, workspace) -> np.ndarray:
-    """H×W bool mask of the largest connected blob of pixels standing above the table plane
-    (robot frame z > table_z + min_height) inside the workspace box."""
+def _segment_object(view: RobotView, table_z: float, min_height: float, workspace, join_m: float = 0.03) -> np.ndarray:
+    """H×W bool mask of the object: pixels standing above the table plane (robot frame
+    z > table_z + min_height) inside the workspace box, as the largest connected blob plus the
+    blobs within `join_m` (m) of it."""
     K = view.intrinsics
     pc = np.asarray(backproject_depth(K, jnp.asarray(view.depth)), np.float64).reshape(-1, 3)
     T = np.asarray(jaxlie.SE3(jnp.asarray(view.T_robot_cam, jnp.float32)).as_matrix(), np.float64)
@@ -101,15 +117,27 @@ def _segment_object(view: RobotView, table_z: float, min_height: float, workspac
     ok = (view.depth.reshape(-1) > 0) & (pr[:, 2] > table_z + min_height) & (pr[:, 2] < z1)
     ok &= (pr[:, 0] > x0) & (pr[:, 0] < x1) & (pr[:, 1] > y0) & (pr[:, 1] < y1)
     mask = ok.reshape(K.height, K.width).astype(np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    # close 1-pixel gaps (thin parts), drop isolated speckle
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n <= 1:
+    big = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= 4]
+    if not big:
         raise RegistrationError(
             "robot view: no object found standing above the table (no depth pixels more than "
             f"{min_height * 1e3:.0f} mm above z = {table_z} m inside the workspace)"
         )
-    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    return lab == k
+    # the object: the largest blob plus every blob whose points come within `join_m` of it (thin
+    # objects such as scissors break into pieces at the height threshold)
+    k = max(big, key=lambda i: stats[i, cv2.CC_STAT_AREA])
+    pts = pr.reshape(K.height, K.width, 3)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(pts[lab == k][::4])
+    keep = lab == k
+    for i in big:
+        if i != k and np.min(tree.query(pts[lab == i][::2])[0]) < join_m:
+            keep |= lab == i
+    return keep
 
 
 class RegWeights(eqx.Module):
@@ -142,13 +170,16 @@ def _reg_objective(tm, T_cam_obj, obs, rcfg, md, blob, T_robot_cam, table_z, w: 
 
 
 @eqx.filter_jit
-def _optimise(tm, T_seeds: jaxlie.SE3, c, obs, lrs, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
-    """Vmapped Adam over seeds on tangent updates about the object centroid `c`."""
+def _optimise(tm, T_seeds: jaxlie.SE3, c, scale, obs, lrs, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
+    """Vmapped Adam over seeds on tangent updates about the object centroid `c`; the translation
+    part is in units of the object's diameter (2 · `scale`), so a step of lr moves the object by
+    that fraction of its size, whatever its size (rotation: lr radians)."""
     opt = optax.scale_by_adam()
+    units = jnp.concatenate([jnp.full(3, 2.0 * scale), jnp.ones(3)])
 
     def one(T_seed):
         def loss_fn(d):
-            return _reg_objective(tm, centred(T_seed, d, c), obs, rcfg, md, blob, T_robot_cam, table_z, w)
+            return _reg_objective(tm, centred(T_seed, d * units, c), obs, rcfg, md, blob, T_robot_cam, table_z, w)
 
         def step(carry, lr):
             d, st = carry
@@ -159,7 +190,9 @@ def _optimise(tm, T_seeds: jaxlie.SE3, c, obs, lrs, rcfg, md, blob, T_robot_cam,
 
         d0 = jnp.zeros(6)
         (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
-        return centred(T_seed, d, c).wxyz_xyz, loss_fn(d)
+        T = centred(T_seed, d * units, c)
+        feat = _reg_objective(tm, T, obs, rcfg, md, blob, T_robot_cam, table_z, RegWeights(1.0, 0.0, 0.0, 0.0, w.depth_clip))
+        return T.wxyz_xyz, loss_fn(d), feat
 
     return jax.vmap(one)(T_seeds)
 
@@ -224,10 +257,11 @@ def register_object(
     roi_size: int = 224,
     max_gaussians: int = 4000,
     table_z: float = 0.0,
-    min_height: float = 0.004,
+    min_height: float = 0.003,
     workspace: tuple = ((0.1, 0.9), (-0.5, 0.5), 0.5),
     icp_iters: int = 30,
     icp_trim_m: float = 0.015,
+    max_residual_mm: float = 6.0,
     extractor=None,
     seed: int = 0,
 ) -> Registration:
@@ -254,6 +288,7 @@ def register_object(
         workspace: ((x0, x1), (y0, y1), z_max) box in the robot frame where the object may be.
         icp_iters: iterations of the final ICP refinement (0: off), see `icp_refine`.
         icp_trim_m: ICP correspondence trim distance (m).
+        max_residual_mm: `status` is `poor_fit` above this residual.
         extractor: feature extractor (default rebuilt from the model's backend).
         seed: Gaussian subsampling seed.
 
@@ -326,7 +361,7 @@ def register_object(
     lap("choose_config")
     blob_g = jnp.asarray(crop(blob.astype(np.float32), box, g, cv2.INTER_AREA))
     tz = jnp.float32(table_z)
-    Ts, losses = _optimise(tm, T_seeds, cj, obs, lr_schedule(init.lr_start, init.lr_end, init.iters), rcfg, md, blob_g, T_robot_cam, tz, weights)
+    Ts, losses, feats = _optimise(tm, T_seeds, cj, jnp.float32(radius), obs, lr_schedule(init.lr_start, init.lr_end, init.iters), rcfg, md, blob_g, T_robot_cam, tz, weights)
     best = int(jnp.argmin(losses))
     T_best = jaxlie.SE3(Ts[best])
     T_cam_obj, final_loss = T_best, float(losses[best])
@@ -339,7 +374,7 @@ def register_object(
         rcfg2 = choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5)
         lrs2 = lr_schedule(init.lr_end, init.lr_end * 0.5, init.refine_iters)
         blob2 = jnp.asarray(crop(blob.astype(np.float32), box2, g, cv2.INTER_AREA))
-        Ts2, losses2 = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
+        Ts2, losses2, _ = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, jnp.float32(radius), obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
         T_cam_obj, final_loss = jaxlie.SE3(Ts2[0]), float(losses2[0])
     # metric refinement: ICP of the blob's points (camera frame) onto the model's Gaussian centres
     icp_info = {}
@@ -356,11 +391,13 @@ def register_object(
     T_robot_obj = T_robot_cam @ T_cam_obj
     lap("self_check")
     info = {
-        "seed_losses": np.asarray(losses).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
+        "seed_losses": np.asarray(losses).tolist(), "seed_feature_losses": np.asarray(feats).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
         "final_loss": final_loss, "blob_pixels": int(blob.sum()),
         "icp": icp_info, "time_s": time.perf_counter() - t0, "timings_s": timings,
     }  # fmt: skip
+    status = RegistrationStatus.ok if resid <= max_residual_mm else RegistrationStatus.poor_fit
     return Registration(
+        status=status,
         T_robot_obj=np.asarray(T_robot_obj.wxyz_xyz, np.float64),
         T_cam_obj=np.asarray(T_cam_obj.wxyz_xyz, np.float64),
         loss=final_loss,
