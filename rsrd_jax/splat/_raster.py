@@ -350,7 +350,50 @@ def render(
     )
 
 
-_pairs_jit = jax.jit(_sorted_pairs, static_argnums=(2, 3))
+def _host_pairs(proj: Projected, TX: int, TY: int, ts: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """numpy version of `_sorted_pairs` for sizing: the Gaussian of every entry of the per-tile
+    near-to-far lists, tile start offsets, and the total pair count before ellipse culling.
+    Boxes use float32 arithmetic like the device code; the ellipse test is slightly looser than
+    the device's, so lists here are a superset and budgets err on the safe side."""
+    xy = np.asarray(proj.xy, np.float32)
+    ext = np.asarray(proj.extent, np.float32)
+    vis = np.asarray(proj.visible)
+    lo = np.clip(np.floor((xy - ext) / np.float32(ts)), 0, [TX - 1, TY - 1]).astype(np.int64)
+    hi = np.clip(np.floor((xy + ext) / np.float32(ts)), 0, [TX - 1, TY - 1]).astype(np.int64)
+    nxy = np.where(vis[:, None], hi - lo + 1, 0)
+    n_pairs = nxy[:, 0] * nxy[:, 1]
+    total = int(n_pairs.sum())
+    g = np.repeat(np.arange(xy.shape[0]), n_pairs)
+    local = np.arange(total) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
+    tx = lo[g, 0] + local % np.maximum(nxy[g, 0], 1)
+    ty = lo[g, 1] + local // np.maximum(nxy[g, 0], 1)
+    # Minimum of σ over the tile's rectangle of pixel centres (see `_ellipse_meets_tile`).
+    conic = np.asarray(proj.conic, np.float64)[g]
+    a, b, c = conic[:, 0], conic[:, 1], conic[:, 2]
+    u, v = xy[g, 0].astype(np.float64), xy[g, 1].astype(np.float64)
+    lo_x, lo_y = tx * ts + 0.5 - u, ty * ts + 0.5 - v
+    hi_x, hi_y = lo_x + (ts - 1), lo_y + (ts - 1)
+    a_s, c_s = np.where(a > 0, a, 1.0), np.where(c > 0, c, 1.0)
+
+    def sig(dx, dy):
+        return 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+
+    edge = np.minimum.reduce(
+        [
+            sig(lo_x, np.clip(-b * lo_x / c_s, lo_y, hi_y)),
+            sig(hi_x, np.clip(-b * hi_x / c_s, lo_y, hi_y)),
+            sig(np.clip(-b * lo_y / a_s, lo_x, hi_x), lo_y),
+            sig(np.clip(-b * hi_y / a_s, lo_x, hi_x), hi_y),
+        ]
+    )
+    inside = (lo_x <= 0) & (hi_x >= 0) & (lo_y <= 0) & (hi_y >= 0)
+    thr = np.log(np.maximum(255.0 * np.asarray(proj.opacity, np.float64)[g], 1e-30))
+    keep = np.where(inside, 0.0, edge) <= thr * (1.0 + 1e-2) + 1e-2
+    g, tile = g[keep], (ty * TX + tx)[keep]
+    depth = np.asarray(proj.depth, np.float32)[g]
+    order = np.lexsort((g, depth, tile))
+    bounds = np.searchsorted(tile[order], np.arange(TX * TY + 1))
+    return g[order], bounds, total
 _project_jit = jax.jit(project_gaussians)
 
 
@@ -358,7 +401,7 @@ def _round_up(x: float, m: int) -> int:
     return int(max(m, m * math.ceil(x / m)))
 
 
-def _walked_entries(proj: Projected, g, slot, bounds, TX: int, ts: int, block: int = 128) -> np.ndarray:
+def _walked_entries(proj: Projected, gid_sorted, bounds, TX: int, ts: int, block: int = 128) -> np.ndarray:
     """Host-side (numpy, float64) count per tile of the list entries its pixels walk before
     gsplat's transmittance stop, plus one entry of margin for float32 rounding in `render`.
     Same rules as the compositor: α = min(MAX_ALPHA, o·e^(−σ)), kept if α ≥ ALPHA_THRESHOLD, a
@@ -369,7 +412,7 @@ def _walked_entries(proj: Projected, g, slot, bounds, TX: int, ts: int, block: i
     opac = np.asarray(proj.opacity, np.float64)
     bounds = np.asarray(bounds)
     counts = np.diff(bounds)
-    gid_sorted = np.asarray(g)[np.asarray(slot)[: max(int(bounds[-1]), 1)]]
+    gid_sorted = gid_sorted if gid_sorted.shape[0] else np.zeros(1, np.int64)
     n_tiles = counts.shape[0]
     r = np.arange(ts) + 0.5
     py, px = np.meshgrid(r, r, indexing="ij")
@@ -406,8 +449,9 @@ def choose_config(
 ) -> RenderConfig:
     """Host-side choice of the static budgets (K, chunks, pairs) for a scene and its cameras.
 
-    Bins each camera once (jitted; compiled once per image size and N) and measures on the host,
-    per tile, how many list entries the pixels walk before the transmittance stop
+    Projects the Gaussians into each camera (jitted; compiled once per N and image size), builds
+    the per-tile lists on the host (numpy, no compilation) and measures per tile how many list
+    entries the pixels walk before the transmittance stop
     (`exact=False`: the smallest K that renders these views exactly, plus one entry for rounding)
     or how many candidates there are (`exact=True`: no list is ever cut). K is that maximum
     times `headroom` (for poses that move), rounded up to a multiple of `chunk_size`;
@@ -430,24 +474,12 @@ def choose_config(
     for cam in cameras:
         proj = _project_jit(gaussians, cam)
         TX, TY = _grid(cam, tile_size)
-        # Pair count on the host (float64 boxes; the device count is checked below), so that
-        # the pair sort compiles once, for a power-of-two budget shared by similar scenes.
-        xy, ext = np.asarray(proj.xy, np.float64), np.asarray(proj.extent, np.float64)
-        lo = np.clip(np.floor((xy - ext) / tile_size), 0, [TX - 1, TY - 1])
-        hi = np.clip(np.floor((xy + ext) / tile_size), 0, [TX - 1, TY - 1])
-        host_total = int(np.sum(np.prod(hi - lo + 1, axis=-1) * np.asarray(proj.visible)))
-        budget = 1 << max(10, math.ceil(math.log2(max(host_total, 1) * 1.01)))
-        while True:
-            g, slot, bounds, total = _pairs_jit(proj, cam, tile_size, budget)
-            total = int(total)
-            if total <= budget:
-                break
-            budget = 1 << math.ceil(math.log2(total))
+        gid_sorted, bounds, total = _host_pairs(proj, TX, TY, tile_size)
         counts = np.diff(np.asarray(bounds))
         if exact:
             k = int(counts.max())
         else:
-            k = int(_walked_entries(proj, g, slot, bounds, TX, tile_size).max())
+            k = int(_walked_entries(proj, gid_sorted, bounds, TX, tile_size).max())
         need_k, need_m = max(need_k, k), max(need_m, total)
         all_counts.append(counts)
     K = _round_up(need_k * headroom, B)
