@@ -345,3 +345,26 @@ def test_vmap_over_part_poses_gradient():
     for i in range(3):
         np.testing.assert_allclose(np.asarray(batched[i]), np.asarray(single(xis[i])), rtol=1e-4, atol=1e-3)
     assert bool(jnp.all(jnp.isfinite(batched))) and float(jnp.max(jnp.abs(batched))) > 0
+
+
+def test_choose_config_host_lists_cover_device_lists():
+    """`choose_config` sizes budgets from numpy lists: they must hold every pair the device
+    binning keeps (a superset: the host ellipse test is slightly looser), with the same total."""
+    g = _scene(31)
+    cam = _camera(_random_pose(np.random.default_rng(31)))
+    proj = project_gaussians(g, cam)
+    TX, TY = _raster._grid(cam, CFG.tile_size)
+    gid, bounds, total = _raster._host_pairs(proj, TX, TY, CFG.tile_size)
+    bins = _raster.bin_gaussians(proj, cam, CFG)
+    assert total == int(bins.total_pairs) and int(bins.total_chunks) <= CFG.max_chunks
+    ids, tiles = np.asarray(bins.ids), np.asarray(bins.layout.tile)
+    used = np.asarray(bins.layout.count) > 0
+    for t in range(TX * TY):
+        device = ids[used & (tiles == t)].reshape(-1)
+        device = device[device < N]
+        host = gid[bounds[t] : bounds[t + 1]]
+        assert set(device.tolist()) <= set(host.tolist()), t
+        # near to far in both
+        order = {k: i for i, k in enumerate(host.tolist())}
+        assert [order[k] for k in device.tolist()] == sorted(order[k] for k in device.tolist()), t
+    assert int(np.sum(np.diff(bounds))) >= int(np.sum(np.asarray(bins.counts))) > 0
