@@ -291,7 +291,7 @@ def hand_geometry(robot: YumiModel, proxy: RobotProxy) -> HandGeometry:
         fk = forward_kinematics(robot, jnp.asarray(q), check_finite=False)
         T_tcp_link = jaxlie.SE3(fk.T_world_tcp.wxyz_xyz[0]).inverse() @ jaxlie.SE3(fk.T_world_link.wxyz_xyz[np.asarray(proxy.link)[sel]])
         pts.append((np.asarray(T_tcp_link @ proxy.p0[sel]), np.asarray(T_tcp_link @ proxy.p1[sel])))
-    (a0, b0), (a1, b1) = pts
+    (a0, b0), (a1, _) = pts
     dp = (a1 - a0) / 0.025
     sc = np.asarray(proxy.sample_cap)
     keep = np.isin(sc, sel)

@@ -16,11 +16,21 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
 from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, sample_antipodal_grasps
 from ..hands import RankConfig, rank_parts
 from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
+from ._costs import (
+    CostParams,
+    CostWeights,
+    PoseData,
+    problem_data,
+    strip_robot,
+    tcp_errors,
+    trajectory_problem,
+)
+from ._lm import LMResult, SolverConfig, TerminationConfig, TrustRegionConfig, solve_lm
 from ._proxy import (
     PartSDF,
     RobotProxy,
@@ -31,17 +41,6 @@ from ._proxy import (
     proxy_distances,
     robot_proxy,
 )
-from ._costs import (
-    CollisionData,
-    CostParams,
-    CostWeights,
-    PoseData,
-    problem_data,
-    strip_robot,
-    tcp_errors,
-    trajectory_problem,
-)
-from ._lm import LMResult, SolverConfig, TerminationConfig, TrustRegionConfig, solve_lm
 
 ARM_NAMES = ("right", "left")
 """Arm index 0 = right (joints 0..6, gripper 14), 1 = left (7..13, 15)."""
@@ -622,8 +621,8 @@ def plan_robot(
         res, msg = {
             "joint_limits": (PlanResult.joint_limits, "all tracking candidates violate joint limits"),
             "collision": (PlanResult.collision, "all remaining candidates collide along the trajectory"),
-            "grasp_collision": (PlanResult.collision, "at every grasp the gripper itself hits the table or the "
-                                                      "object along the trajectory (at every seating depth)"),
+            "grasp_collision": (PlanResult.collision, ("at every grasp the gripper itself hits the table or the "
+                                                       "object along the trajectory (at every seating depth)")),
             "approach": (PlanResult.approach, "no remaining candidate has a collision-free approach"),
         }.get(last_stage, (PlanResult.unreachable,
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
