@@ -475,7 +475,7 @@ def plan_robot(
     home = np.asarray(HOME_Q, np.float32)
     home_tcp = np.asarray(tcp_poses(robot_lite, jnp.asarray(home)))  # (2, 7)
     open_grip = float(robot.upper[14])
-    info: dict = {"num_frames": nT, "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES}}
+    info: dict = {"num_frames": nT, "num_parts": len(part_points), "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES}}
 
     # Ranking
     if config.parts is not None:
