@@ -4,6 +4,7 @@ The GT-geometry model (`tests/_gt_model.py`) isolates tracking from 3DGS fitting
 """
 
 import dataclasses
+from pathlib import Path
 
 import jax.numpy as jnp
 import jaxlie
@@ -80,3 +81,137 @@ def test_bad_inputs(studio, tmp_path):
         StudioHandMasks(tmp_path)
     with pytest.raises(ArtefactError, match="trajectory not found"):
         load_trajectory(tmp_path)
+
+
+# ------------------------------------------------------------------ known motions, init, bad inputs
+def _render_demo(model, T_cwp: np.ndarray, K, bg=(0.55, 0.5, 0.45)) -> np.ndarray:
+    """Frames of the model's Gaussians with part k at `T_cwp[t, k]` (scan world -> camera)."""
+    from rsrd_jax.geometry import Camera
+    from rsrd_jax.splat import apply_part_poses, choose_config, render
+
+    g = model.gaussians
+    rest = rest_part_poses(model.part_centroids)
+    cam = Camera(K, jaxlie.SE3.identity())
+    posed = [apply_part_poses(g, jaxlie.SE3(jnp.asarray(T, jnp.float32)) @ rest, model.part_centroids) for T in T_cwp]
+    cfg = choose_config(posed[0], cam, headroom=2.0)
+    frames = [np.asarray(render(p, cam, cfg, jnp.asarray(bg, jnp.float32)).rgb) for p in posed]
+    return (np.clip(np.stack(frames), 0, 1) * 255).astype(np.uint8)
+
+
+def _object_motion(T0: np.ndarray, centre_cam: np.ndarray, n: int, yaw: float, shift: np.ndarray) -> np.ndarray:
+    """n frames of a rigid motion of the whole object: rotation about the camera's y axis through
+    the object centre, up to `yaw` rad, plus a translation up to `shift` (camera frame, m)."""
+    out = []
+    for t in range(n):
+        s = t / max(n - 1, 1)
+        M = jaxlie.SE3.from_translation(jnp.asarray(centre_cam + s * shift, jnp.float32)) @ jaxlie.SE3.from_rotation(
+            jaxlie.SO3.from_y_radians(s * yaw)) @ jaxlie.SE3.from_translation(jnp.asarray(-centre_cam, jnp.float32))  # fmt: skip
+        out.append(np.asarray((M @ jaxlie.SE3(jnp.asarray(T0, jnp.float32))).wxyz_xyz))
+    return np.stack(out)
+
+
+def _track_synthetic(model, ext, T_cwp, K, cfg, known_init: bool):
+    from rsrd_jax.io import Demo
+
+    frames = _render_demo(model, T_cwp, K)
+    demo = Demo(Path("synthetic.mp4"), frames, 30.0, K)
+    T0 = jaxlie.SE3(jnp.asarray(T_cwp[0, 0], jnp.float32)) if known_init else None
+    traj = track_video(model, demo, cfg, TINY_INIT, extractor=ext, progress=False, T_cam_obj_init=T0)
+    pts = [np.asarray(model.gaussians.means)[np.asarray(model.gaussians.part_ids) == k] for k in range(model.num_parts)]
+    return add_metrics(traj.T_cam_world_part, T_cwp, pts), traj
+
+
+RIGID_TOL_MM = 4.0
+"""ADD (object-frame alignment on frame 0) tolerance of the synthetic known-motion tests."""
+
+
+@pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 5): at this tiny size (12×12 ROI grid, 1500 Gaussians, "
+                   "30-iteration field) tracking a synthetic 2.3°+3 mm/frame motion ends 12.5/8.7 mm off, worse than "
+                   "standing still (10.4 mm); strict: remove this marker when it passes")
+def test_track_recovers_a_known_rigid_motion(studio):
+    root, model, ext = studio
+    gt = read_demo_gt(root / "demo")
+    demo = read_demo(root / "demo" / "demo.mp4")
+    T0 = gt["T_cam_world_part"][0, 0]
+    c = np.asarray(jaxlie.SE3(jnp.asarray(T0, jnp.float32)) @ jnp.asarray(np.asarray(model.gaussians.means).mean(0)))
+    T = _object_motion(T0, c, 7, yaw=0.24, shift=np.array([0.018, 0.0, 0.0]))
+    T_cwp = np.repeat(T[:, None], model.num_parts, axis=1)
+    cfg = dataclasses.replace(TINY, steps_per_frame=40, smooth_iters=0)
+    m, _ = _track_synthetic(model, ext, T_cwp, demo.intrinsics, cfg, known_init=True)
+    # 2.3° and 3 mm per frame; not following at all would give this much error:
+    still = add_metrics(np.repeat(T_cwp[:1], len(T_cwp), 0), T_cwp, [np.asarray(model.gaussians.means)])["mean_add_obj_mm"]
+    assert max(m["add_obj_mm"]) < RIGID_TOL_MM < still / 2, (m["add_obj_mm"], still)
+
+
+@pytest.mark.slow
+def test_track_recovers_a_known_hinge_motion(tmp_path):
+    """The red box's lid closes about its hinge (studio ground truth, 1.1 rad over 12 frames)."""
+    root = tmp_path / "red_box"
+    make_object("red_box", root, StudioConfig(scan_views=8, scan_size=(128, 96), demo_frames=40, demo_size=(160, 120), parts=("scan", "demo")))
+    model, ext = gt_object_model(root, pca_dim=16, per_part=600, field_iters=60)
+    gt = read_demo_gt(root / "demo")
+    demo = read_demo(root / "demo" / "demo.mp4")
+    T_cwp = gt["T_cam_world_part"][6:30:2]
+    rel = jaxlie.SE3(jnp.asarray(T_cwp[:, 0], jnp.float32)).inverse() @ jaxlie.SE3(jnp.asarray(T_cwp[:, 1], jnp.float32))
+    angle = np.linalg.norm(np.asarray(rel.rotation().log()), axis=-1)
+    assert angle.max() - angle.min() > 0.8  # the lid really turns
+    cfg = dataclasses.replace(TINY, steps_per_frame=40, smooth_iters=0, roi_size=128)
+    m, _ = _track_synthetic(model, ext, T_cwp, demo.intrinsics, cfg, known_init=True)
+    lid_still = add_metrics(np.repeat(T_cwp[:1], len(T_cwp), 0), T_cwp, [np.asarray(model.gaussians.means)[np.asarray(model.gaussians.part_ids) == 1]])
+    assert lid_still["mean_add_obj_mm"] > 15.0
+    assert max(m["add_obj_mm"]) < 2 * RIGID_TOL_MM, m["add_obj_mm"]
+
+
+@pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 5): at this tiny size the seed losses differ by < 8 % "
+                   "(0.43-0.46) and init picks a seed 164° away for yaw 20°; strict: remove the marker when it passes")
+@pytest.mark.parametrize("seed", [pytest.param(0), pytest.param(3, marks=pytest.mark.slow), pytest.param(5, marks=pytest.mark.slow)])
+def test_init_recovers_a_yaw_from_each_seed_basin(studio, seed):
+    """The object turned by a seed's yaw + 20° (inside that seed's basin, away from the others'
+    optimum at the true pose only if the optimisation works): init finds it within 12°."""
+    from rsrd_jax.track import initialize_pose
+    from rsrd_jax.track._dpm import TrackModel
+    from rsrd_jax.track._observe import Observer, full_frame_box
+    from rsrd_jax.track._track import _roi_for
+
+    root, model, ext = studio
+    gt = read_demo_gt(root / "demo")
+    K = read_demo(root / "demo" / "demo.mp4").intrinsics
+    tm = TrackModel.from_object_model(model, 1500)
+    T0 = jaxlie.SE3(jnp.asarray(gt["T_cam_world_part"][0, 0], jnp.float32))
+    c = tm.gaussians.means.mean(0)
+    yaw = seed * 2 * np.pi / TINY_INIT.yaw_seeds + np.deg2rad(20.0)
+    # turn the object about its own vertical (object z) axis through its centroid
+    Rz = jaxlie.SE3.from_translation(c) @ jaxlie.SE3.from_rotation(jaxlie.SO3.from_z_radians(yaw)) @ jaxlie.SE3.from_translation(-c)
+    T_true = T0 @ Rz
+    frame = _render_demo(model, np.repeat(np.asarray(T_true.wxyz_xyz)[None, None], model.num_parts, 1), K)[0]
+    obsr = Observer(ext, model.pca, K, TINY.roi_size)
+    rest = rest_part_poses(tm.part_centroids)
+    cfg = dataclasses.replace(TINY_INIT, iters=40, refine_iters=10, altitudes_deg=(30.0, 55.0))
+    res, info = initialize_pose(tm, lambda b: obsr.observe(0, frame, b), frame, K, cfg, full_frame_box(K.width, K.height),
+                                lambda T: _roi_for(tm, rest, T, K, TINY.roi_margin))  # fmt: skip
+    err = np.rad2deg(float(jnp.linalg.norm((T_true.rotation().inverse() @ res.T_cam_obj.rotation()).log())))
+    assert err < 12.0, (err, info)
+
+
+def test_bad_demo_files_give_clear_errors(studio, tmp_path):
+    import shutil
+
+    root, _, _ = studio
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "demo.mp4").write_bytes(b"not a video")
+    shutil.copy(root / "demo" / "camera.json", bad / "camera.json")
+    with pytest.raises(ArtefactError, match="demo.mp4"):
+        read_demo(bad / "demo.mp4")
+    nocam = tmp_path / "nocam"
+    nocam.mkdir()
+    shutil.copy(root / "demo" / "demo.mp4", nocam / "demo.mp4")
+    with pytest.raises(ArtefactError, match="camera.json"):
+        read_demo(nocam / "demo.mp4")
+    import json
+
+    cam = json.loads((root / "demo" / "camera.json").read_text())
+    cam["w"], cam["cx"] = cam["w"] * 2, cam["cx"] * 2
+    (nocam / "camera.json").write_text(json.dumps(cam))
+    with pytest.raises(ArtefactError, match="camera is"):
+        read_demo(nocam / "demo.mp4")

@@ -20,6 +20,7 @@ from jaxtyping import Array, Float, Int
 from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
+from ._lod import merge_gaussians
 from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness
 
 _trace_counts = {"frame": 0, "smooth": 0}
@@ -33,19 +34,30 @@ class TrackModel(eqx.Module):
     decoder: eqx.Module
     """Per-pixel feature decoder F -> D (PCA space)."""
     part_centroids: Float[Array, "p 3"]
+    part_pivots: Float[Array, "p 3"]
+    """Pivot of each part's tangent update, in the part frame (metres from the rest centroid): the
+    centre of the part's ARAP contact pairs for every part but the largest (a hinge's rotation is
+    then one coordinate of the update instead of a coupled rotation + translation, which a
+    diagonal optimiser like Adam follows badly), zero (the centroid) otherwise."""
     arap_pairs: Int[Array, "m 2"]
     arap_weight: Float[Array, " m"]
     num_features: int = eqx.field(static=True)
     num_parts: int = eqx.field(static=True)
 
     @staticmethod
-    def from_object_model(model, max_gaussians: int, seed: int = 0) -> TrackModel:
-        """Host-side: subsample Gaussians (keeping ARAP pairs whose ends survive), append one-hot
-        part channels to the features."""
+    def from_object_model(model, max_gaussians: int, seed: int = 0, voxel_m: float | None = None) -> TrackModel:
+        """Host-side: optionally merge Gaussians per part on a `voxel_m` grid (level of detail for
+        the tracker's render resolution), subsample to `max_gaussians` (keeping ARAP pairs whose
+        ends survive), append one-hot part channels to the features."""
         g = model.gaussians
-        n = g.num_gaussians
         rng = np.random.default_rng(seed)
         pairs = np.asarray(model.arap_pairs, np.int64).reshape(-1, 2)
+        if voxel_m:
+            g, inv = merge_gaussians(g, float(voxel_m))
+            pairs = inv[pairs] if len(pairs) else pairs
+            if len(pairs):
+                pairs = np.unique(np.sort(pairs[pairs[:, 0] != pairs[:, 1]], axis=1), axis=0)
+        n = g.num_gaussians
         if n > max_gaussians:
             # keep every Gaussian that is in an ARAP pair (boundary), fill up by opacity-weighted draw
             must = np.unique(pairs.reshape(-1))[: max_gaussians // 2]
@@ -66,17 +78,42 @@ class TrackModel(eqx.Module):
             pairs_w = np.ones(len(pairs), np.float32)
         P = int(model.num_parts)
         sub = jax.tree_util.tree_map(lambda x: x[keep], g)
+        pivots = contact_pivots(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w, np.asarray(model.part_centroids), P)
         onehot = jax.nn.one_hot(sub.part_ids, P, dtype=sub.features.dtype)
         sub = eqx.tree_at(lambda x: x.features, sub, jnp.concatenate([sub.features, onehot], axis=-1))
         return TrackModel(
             gaussians=sub,
             decoder=model.decoder,
             part_centroids=jnp.asarray(model.part_centroids, jnp.float32),
+            part_pivots=jnp.asarray(pivots, jnp.float32),
             arap_pairs=jnp.asarray(pairs, jnp.int32),
             arap_weight=jnp.asarray(pairs_w),
             num_features=int(g.num_features),
             num_parts=P,
         )
+
+
+def contact_pivots(means, part_ids, pairs, pair_w, centroids, P: int) -> np.ndarray:
+    """Per part: mean midpoint of its cross-part ARAP pairs minus its centroid (P×3, part frame);
+    zero for the largest part and for parts without pairs."""
+    piv = np.zeros((P, 3))
+    counts = np.bincount(part_ids, minlength=P)
+    root = int(np.argmax(counts))
+    pairs = pairs[pair_w > 0]
+    for k in range(P):
+        if k == root:
+            continue
+        sel = (part_ids[pairs[:, 0]] == k) | (part_ids[pairs[:, 1]] == k)
+        if sel.any():
+            mid = 0.5 * (means[pairs[sel, 0]] + means[pairs[sel, 1]])
+            piv[k] = mid.mean(0) - centroids[k]
+    return piv
+
+
+def compose_update(T_init: jaxlie.SE3, delta: Float[Array, "*b p 6"], pivots: Float[Array, "p 3"]) -> jaxlie.SE3:
+    """`T_init @ Tr(q) @ exp(δ) @ Tr(−q)` per part: a tangent update about pivot q (part frame)."""
+    Tq = jaxlie.SE3.from_translation(jnp.broadcast_to(pivots, delta.shape[:-1] + (3,)))
+    return jaxlie.SE3(T_init.wxyz_xyz) @ Tq @ jaxlie.SE3.exp(delta) @ Tq.inverse()
 
 
 class Rendered(eqx.Module):
@@ -209,7 +246,7 @@ def solve_frame(
     opt = optax.scale_by_adam()
 
     def loss_fn(delta, k):
-        T = jaxlie.SE3(T_init.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+        T = compose_update(T_init, delta, tm.part_pivots)
         return frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs)
 
     def step(carry, xs):
@@ -223,7 +260,7 @@ def solve_frame(
     delta0 = jnp.zeros((P, 6))
     keys = jax.random.split(key, lrs.shape[0] + 1)
     (delta, _), losses = jax.lax.scan(step, (delta0, opt.init(delta0)), (lrs, keys[1:]))
-    T = jaxlie.SE3(T_init.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+    T = compose_update(T_init, delta, tm.part_pivots)
     _, aux = frame_objective(tm, T, T_cam_obj, obs, w, keys[0], config, num_pairs)
     aux["loss_curve"] = losses
     return T, aux
@@ -248,7 +285,7 @@ def smooth_step(
     _trace_counts["smooth"] += 1
 
     def loss_fn(delta):
-        T_all = jaxlie.SE3(T_base.wxyz_xyz) @ jaxlie.SE3.exp(delta)
+        T_all = compose_update(T_base, delta, tm.part_pivots)
         sm = pose_smoothness(T_all)
         T_b = jaxlie.SE3(T_all.wxyz_xyz[frames])
         obs_b = jax.tree_util.tree_map(lambda x: x[frames], obs)

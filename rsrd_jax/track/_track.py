@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -15,7 +16,7 @@ from ..geometry import Camera, project_points
 from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
-from ._dpm import TrackModel, Weights, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
+from ._dpm import TrackModel, compose_update, Weights, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
 from ._init import initialize_pose
 from ._observe import MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
 
@@ -38,6 +39,7 @@ def track_video(
     extractor=None,
     progress: bool = True,
     log=None,
+    T_cam_obj_init: jaxlie.SE3 | None = None,
 ) -> PartTrajectory:
     """Tracks every part of `model` through `demo` (4D-DPM, RSRD §4).
 
@@ -51,6 +53,8 @@ def track_video(
         extractor: the feature extractor; default rebuilt from `model.feature_backend`.
         progress: show a progress bar.
         log: optional callback `log(stage, t, dict)` (rerun logging in the CLI).
+        T_cam_obj_init: a known object pose on frame 0 (e.g. from another registration); skips
+            the initialisation.
 
     Returns:
         PartTrajectory with per-frame part poses, object pose, residuals and metadata
@@ -58,6 +62,12 @@ def track_video(
     """
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
+    f = np.asarray(demo.frames)
+    if f.ndim != 4 or f.shape[1:] != (demo.intrinsics.height, demo.intrinsics.width, 3) or f.dtype != np.uint8:
+        raise ArtefactError(
+            f"{demo.video_path}: frames must be T×{demo.intrinsics.height}×{demo.intrinsics.width}×3 uint8 "
+            f"(the camera's size), got {f.shape} {f.dtype}"
+        )
     if extractor is None:
         from ..parts import make_extractor
 
@@ -71,19 +81,29 @@ def track_video(
         separable = bool(model.meta.get("separable", False))
     K = demo.intrinsics
     t_start = time.perf_counter()
-    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed)
     obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono)
+    voxel = None
+    if config.lod_cells:
+        mp = np.asarray(model.gaussians.means)
+        r = float(np.percentile(np.linalg.norm(mp - mp.mean(0), axis=1), 90))
+        voxel = config.lod_cells * 2 * r * (1 + 2 * config.roi_margin) / obsr.grid_size
+    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel)
+    if not config.contact_pivots:
+        tm = eqx.tree_at(lambda m: m.part_pivots, tm, jnp.zeros_like(tm.part_pivots))
     rest = rest_part_poses(tm.part_centroids)
     timings: dict[str, float] = {}
 
     # ---- initialisation on frame 0
     t0 = time.perf_counter()
     frame0 = demo.frames[0]
-    init_res, init_info = initialize_pose(
-        tm, lambda box: obsr.observe(0, frame0, box), frame0, K, init, full_frame_box(K.width, K.height),
-        lambda T: _roi_for(tm, rest, T, K, config.roi_margin),
-    )  # fmt: skip
-    T_cam_obj = init_res.T_cam_obj
+    if T_cam_obj_init is None:
+        init_res, init_info = initialize_pose(
+            tm, lambda box: obsr.observe(0, frame0, box), frame0, K, init, full_frame_box(K.width, K.height),
+            lambda T: _roi_for(tm, rest, T, K, config.roi_margin),
+        )  # fmt: skip
+        T_cam_obj = init_res.T_cam_obj
+    else:
+        T_cam_obj, init_info = jaxlie.SE3(jnp.asarray(T_cam_obj_init.wxyz_xyz, jnp.float32)), {"given": True}
     timings["init_s"] = time.perf_counter() - t0
 
     # ---- per-frame pass
@@ -141,7 +161,7 @@ def track_video(
             g = jnp.where(jnp.isfinite(g), g, 0.0)
             upd, state = opt.update(g, state)
             delta = optax.apply_updates(delta, upd * w.step_scale)
-        T_stack = T_stack @ jaxlie.SE3.exp(delta)
+        T_stack = compose_update(T_stack, delta, tm.part_pivots)
     timings["smooth_s"] = time.perf_counter() - t_sm
     timings["total_s"] = time.perf_counter() - t_start
 
