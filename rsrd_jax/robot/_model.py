@@ -146,7 +146,11 @@ def load_yumi(spec: mujoco.MjSpec | None = None) -> YumiModel:
         A :class:`YumiModel` (kinematics and collision arrays as float32 JAX arrays, the compiled
         ``MjModel`` and its ``mjx.Model``).
     """
-    from mujoco import mjx  # imported lazily: mjx import is slow-ish and prints warp notices
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()):  # mjx prints "Failed to import warp" (optional GPU backend)
+        from mujoco import mjx
 
     spec = build_scene_spec() if spec is None else spec
     m = spec.compile()
