@@ -209,9 +209,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     # ---- register the object in the robot's workspace (robot-view RGB + metric depth)
     with _stage("register", rep, log):
         view = read_robot_view(studio_dir)
-        from .track import InitConfig as _IC
-
-        reg = register_object(model, view, _IC(yaw_seeds=cfg.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3))
+        reg = register_object(model, view, InitConfig(yaw_seeds=cfg.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3))
         T_gt = read_robot_object_pose(studio_dir)
         err = registration_error(reg.T_robot_obj, T_gt, np.concatenate(pts))
         init_ok = err["translation_mm"] <= cfg.init_position_tol_m * 1e3 and err["rotation_deg"] <= cfg.init_rotation_tol_deg
