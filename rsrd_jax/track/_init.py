@@ -66,25 +66,41 @@ def _pose_objective(tm, T_cam_obj, obs: FrameObs, config, metric_depth, depth_we
     return loss
 
 
+def adam_about_centroid(loss_at, T_seed: jaxlie.SE3, c, lrs, units=None) -> jaxlie.SE3:
+    """Adam (optax) on a tangent update δ about the centroid `c` of `T_seed` (`centred`), one
+    step per learning rate in `lrs` (a `lax.scan`); traced inside the caller's jit and vmap.
+
+    Args:
+        loss_at: `T_cam_obj -> scalar` objective.
+        T_seed: the starting pose.
+        c: (3,) object centroid (object frame).
+        lrs: (n,) learning rates.
+        units: optional (6,) scale of δ's components (e.g. translation in object sizes).
+
+    Returns:
+        The optimised pose.
+    """
+    opt = optax.scale_by_adam()
+    u6 = jnp.ones(6) if units is None else units
+
+    def step(carry, lr):
+        d, st = carry
+        g = jax.grad(lambda d: loss_at(centred(T_seed, d * u6, c)))(d)
+        g = jnp.where(jnp.isfinite(g), g, 0.0)
+        upd, st = opt.update(g, st)
+        return (d - lr * upd, st), None
+
+    d0 = jnp.zeros(6)
+    (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
+    return centred(T_seed, d * u6, c)
+
+
 @eqx.filter_jit
 def _optimise_seeds(tm, T_seeds: jaxlie.SE3, c, obs, lrs, config, metric_depth, depth_weight):
-    opt = optax.scale_by_adam()
-
     def one(T_seed):
-        def loss_fn(d):
-            return _pose_objective(tm, centred(T_seed, d, c), obs, config, metric_depth, depth_weight)
-
-        def step(carry, lr):
-            d, s = carry
-            loss, g = jax.value_and_grad(loss_fn)(d)
-            g = jnp.where(jnp.isfinite(g), g, 0.0)
-            u, s = opt.update(g, s)
-            return (d - lr * u, s), loss
-
-        d0 = jnp.zeros(6)
-        (d, _), losses = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
-        T = centred(T_seed, d, c)
-        return T.wxyz_xyz, loss_fn(d)
+        loss_at = lambda T: _pose_objective(tm, T, obs, config, metric_depth, depth_weight)  # noqa: E731
+        T = adam_about_centroid(loss_at, T_seed, c, lrs)
+        return T.wxyz_xyz, loss_at(T)
 
     return jax.vmap(one)(T_seeds)
 

@@ -19,14 +19,13 @@ import jaxlie
 import jax.numpy as jnp
 import jax
 import numpy as np
-import optax
 
 from ..geometry import Camera, Intrinsics, backproject_depth, project_points
 from ..io import ArtefactError, read_camera_json, read_depth_png, read_image_rgb, read_json, require
 from ._config import InitConfig
 from ._dpm import TrackModel
 from ._dpm import lr_schedule, render_posed
-from ._init import centred
+from ._init import adam_about_centroid
 from ._losses import feature_loss
 from ._observe import Observer, crop, roi_box
 from ..splat import apply_part_poses, choose_config, rest_part_poses
@@ -174,25 +173,13 @@ def _optimise(tm, T_seeds: jaxlie.SE3, c, scale, obs, lrs, rcfg, md, blob, T_rob
     """Vmapped Adam over seeds on tangent updates about the object centroid `c`; the translation
     part is in units of the object's diameter (2 · `scale`), so a step of lr moves the object by
     that fraction of its size, whatever its size (rotation: lr radians)."""
-    opt = optax.scale_by_adam()
     units = jnp.concatenate([jnp.full(3, 2.0 * scale), jnp.ones(3)])
 
     def one(T_seed):
-        def loss_fn(d):
-            return _reg_objective(tm, centred(T_seed, d * units, c), obs, rcfg, md, blob, T_robot_cam, table_z, w)
-
-        def step(carry, lr):
-            d, st = carry
-            loss, g = jax.value_and_grad(loss_fn)(d)
-            g = jnp.where(jnp.isfinite(g), g, 0.0)
-            u, st = opt.update(g, st)
-            return (d - lr * u, st), loss
-
-        d0 = jnp.zeros(6)
-        (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
-        T = centred(T_seed, d * units, c)
+        loss_at = lambda T: _reg_objective(tm, T, obs, rcfg, md, blob, T_robot_cam, table_z, w)  # noqa: E731
+        T = adam_about_centroid(loss_at, T_seed, c, lrs, units)
         feat = _reg_objective(tm, T, obs, rcfg, md, blob, T_robot_cam, table_z, RegWeights(1.0, 0.0, 0.0, 0.0, w.depth_clip))
-        return T.wxyz_xyz, loss_fn(d), feat
+        return T.wxyz_xyz, loss_at(T), feat
 
     return jax.vmap(one)(T_seeds)
 
