@@ -34,7 +34,7 @@ def test_pipeline_end_to_end_writes_every_artefact(tmp_path):
     traj = load_trajectory(out / "track")
     assert traj.num_frames == 12 and np.all(np.isfinite(traj.T_obj_part))
     plan = load_plan(out / "plan")
-    assert plan.result_name == rep["plan"]["result"]
+    assert plan.result == rep["plan"]["result"] and plan.info["num_parts"] == 2
     for k in ("studio", "build", "track", "register", "plan", "simulate"):
         assert rep[k]["time_s"] > 0
 
