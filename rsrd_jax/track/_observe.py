@@ -162,6 +162,25 @@ def box_intrinsics(K: Intrinsics, box: tuple[float, float, float], size: int) ->
     return Intrinsics(K.fx * k, K.fy * k, (K.cx - x0) * k, (K.cy - y0) * k, size, size)
 
 
+def model_extractor(model, extractor=None):
+    """The feature extractor for `model` (rebuilt from its `feature_backend` when None), checked
+    against the model's PCA input dimension.
+
+    Raises:
+        ArtefactError: if the extractor's feature dimension differs from the model's.
+    """
+    if extractor is None:
+        from ..parts import make_extractor
+
+        extractor = make_extractor(model.feature_backend)
+    if extractor.feature_dim != model.pca.input_dim:
+        raise ArtefactError(
+            f"feature backend mismatch: the extractor gives {extractor.feature_dim}-d features but the "
+            f"model's PCA expects {model.pca.input_dim}-d ({model.feature_backend})"
+        )
+    return extractor
+
+
 class Observer:
     """Builds `FrameObs` for a video: ROI crop -> extractor -> PCA, plus masks and mono-depth."""
 

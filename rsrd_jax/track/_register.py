@@ -27,7 +27,7 @@ from ._dpm import TrackModel
 from ._dpm import lr_schedule, render_posed
 from ._init import adam_about_centroid
 from ._losses import feature_loss
-from ._observe import Observer, crop, roi_box
+from ._observe import model_extractor, Observer, crop, roi_box
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 
 
@@ -288,15 +288,7 @@ def register_object(
     K = view.intrinsics
     if not np.any(view.depth > 0) or not np.all(np.isfinite(view.depth)):
         raise ArtefactError("robot view depth: expected finite metric depth with some valid (> 0) pixels")
-    if extractor is None:
-        from ..parts import make_extractor
-
-        extractor = make_extractor(model.feature_backend)
-    if extractor.feature_dim != model.pca.input_dim:
-        raise ArtefactError(
-            f"feature backend mismatch: the extractor gives {extractor.feature_dim}-d features but the "
-            f"model's PCA expects {model.pca.input_dim}-d ({model.feature_backend})"
-        )
+    extractor = model_extractor(model, extractor)
     t0 = time.perf_counter()
     tick = [t0]
     timings: dict[str, float] = {}

@@ -18,7 +18,7 @@ from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, compose_update, Weights, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
 from ._init import initialize_pose
-from ._observe import MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+from ._observe import model_extractor, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
 
 
 def _roi_for(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, K, margin: float):
@@ -68,15 +68,7 @@ def track_video(
             f"{demo.video_path}: frames must be T×{demo.intrinsics.height}×{demo.intrinsics.width}×3 uint8 "
             f"(the camera's size), got {f.shape} {f.dtype}"
         )
-    if extractor is None:
-        from ..parts import make_extractor
-
-        extractor = make_extractor(model.feature_backend)
-    if extractor.feature_dim != model.pca.input_dim:
-        raise ArtefactError(
-            f"feature backend mismatch: the extractor gives {extractor.feature_dim}-d features but the "
-            f"model's PCA expects {model.pca.input_dim}-d ({model.feature_backend})"
-        )
+    extractor = model_extractor(model, extractor)
     if separable is None:
         separable = bool(model.meta.get("separable", False))
     K = demo.intrinsics
