@@ -19,8 +19,17 @@ can produce for a positive-definite conic; here such a pair gets α = min(MAX_AL
 
 Backward (the analytic form of gsplat's replay, vectorised): with g_k = ⟨dout, feat_k⟩ and
 S_k = Σ_{j>k} w_j g_j over the tile's list, dα_k = used·(T_k g_k − S_k / (1 − α_k)), so
-dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout; the reductions over pixels are GEMMs against
-the basis (6 fused reductions). Masks (kept, used, capped) carry no gradient, as in gsplat.
+dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout; the
+reductions over pixels against the basis are 6 fused reductions. Masks (kept, used, capped) carry
+no gradient, as in gsplat.
+
+Memory matters for speed on CPU: XLA allocates one temporary arena per call, and glibc serves
+arenas above 32 MiB with a fresh mmap each time, so every call then pays page faults on the
+whole arena (≈ 10 ms at 10k Gaussians, 128², 34 channels). Hence the backward keeps only w and
+the signed α (used ⇔ w > 0), and `composite_rows` takes the channels as a table plus row ids so
+that the channel cotangent goes straight into table rows, computed as a reduction written with a
+unit window axis (a batched GEMM output needs an extra (NC, B, C) layout copy before XLA's
+scatter).
 """
 
 from __future__ import annotations
@@ -99,22 +108,45 @@ def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc
     alpha = jnp.minimum(raw, MAX_ALPHA)
     keep = alpha >= ALPHA_THRESHOLD
     l = jnp.where(keep, jnp.log(1.0 - alpha), 0.0)
-    # Signed α of kept pairs (negative where capped). The barrier materialises (α_s, l) once so
-    # that XLA does not re-evaluate σ and the exponential inside every later consumer.
+    # Signed α of kept pairs (negative where capped).
     alpha_s = jnp.where(keep, jnp.where(raw > MAX_ALPHA, -alpha, alpha), 0.0)
-    alpha_s, l = jax.lax.optimization_barrier((alpha_s, l))
     within = l @ _tri(b, False, l.dtype)
     L = within + _chunk_carry(within[..., -1], layout, kc, reverse=False)[..., None]
     used = (alpha_s != 0) & (L > _LOG_T_STOP)
-    a = jnp.abs(alpha_s)
-    w = jnp.where(used, a * jnp.exp(L - l), 0.0)
+    w = jnp.where(used, jnp.abs(alpha_s) * jnp.exp(L - l), 0.0)
     out_c = jnp.einsum("cpk,ckd->cpd", w, feat)
     out = jax.ops.segment_sum(out_c, layout.tile, n_tiles, indices_are_sorted=True)
     sat_c = jnp.all(L[..., -1] <= _LOG_T_STOP, axis=-1)
     saturated = jnp.where(layout.last >= 0, sat_c[jnp.maximum(layout.last, 0)], True)
-    # Backward residual r = α/(1 − α) where used and not capped, −1 where capped (no σ gradient).
-    r = jnp.where(used, jnp.where(alpha_s < 0, -1.0, a / (1.0 - a)), 0.0)
-    return out, saturated, (L - l, used), (w, r)
+    return out, saturated, (L - l, used), (w, alpha_s)
+
+
+def _backward(params, feat, layout: ChunkLayout, w, alpha_s, dout, tile_size: int, kc: int):
+    """Gradient of the entry parameters (NC, B, 6) given the per-chunk output cotangent dout
+    (NC, P, C) and the residuals w and signed α."""
+    b = params.shape[1]
+    g = jnp.einsum("cpd,ckd->cpk", dout, feat)
+    wg = w * g
+    within = wg @ _tri(b, True, wg.dtype)
+    S = within - wg + _chunk_carry(within[..., 0], layout, kc, reverse=True)[..., None]
+    # dσ = −α·dα with dα = T·g − S/(1 − α) and α·T = w, where used (w > 0) and α is not capped.
+    a = jnp.abs(alpha_s)
+    r = jnp.where(alpha_s > 0, a / (1.0 - a), 0.0)
+    dsigma = jnp.where((w > 0) & (alpha_s > 0), r * S - wg, 0.0)
+    basis = pixel_basis(tile_size, params.dtype)
+    q0, q1, q2, q3, q4, q5 = (jnp.sum(dsigma * basis[None, :, None, j], axis=1) for j in range(6))
+    m, n, a_, bb, c, o = (params[..., i] for i in range(6))
+    sx = m * q0 - q1
+    sy = n * q0 - q2
+    sxx = m * m * q0 - 2.0 * m * q1 + q3
+    sxy = m * n * q0 - m * q2 - n * q1 + q4
+    syy = n * n * q0 - 2.0 * n * q2 + q5
+    do = jnp.where(o > 0, -q0 / jnp.where(o > 0, o, 1.0), 0.0)
+    return jnp.stack([a_ * sx + bb * sy, bb * sx + c * sy, 0.5 * sxx, sxy, 0.5 * syy, do], -1)
+
+
+def _zero_layout(layout):
+    return jax.tree.map(lambda x: np.zeros(x.shape, jax.dtypes.float0), layout)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(3, 4, 5))
@@ -156,33 +188,55 @@ def composite_stats(params, feat, layout, n_tiles, tile_size, max_chunks_per_til
 
 
 def _composite_fwd(params, feat, layout, n_tiles, tile_size, kc):
-    out, saturated, _, (w, r) = _forward(params, feat, layout, n_tiles, tile_size, kc)
-    return (out, saturated), (params, feat, layout, w, r)
+    out, saturated, _, (w, alpha_s) = _forward(params, feat, layout, n_tiles, tile_size, kc)
+    return (out, saturated), (params, feat, layout, w, alpha_s)
 
 
 def _composite_bwd(n_tiles, tile_size, kc, res, cts):
-    params, feat, layout, w, r = res
-    b = params.shape[1]
+    params, feat, layout, w, alpha_s = res
     dout = cts[0][layout.tile]  # (NC, P, C)
-    g = jnp.einsum("cpd,ckd->cpk", dout, feat)
+    dparams = _backward(params, feat, layout, w, alpha_s, dout, tile_size, kc)
     dfeat = jnp.einsum("cpk,cpd->ckd", w, dout)
-    wg = w * g
-    within = wg @ _tri(b, True, wg.dtype)
-    S = within - wg + _chunk_carry(within[..., 0], layout, kc, reverse=True)[..., None]
-    # dσ = −α·dα with dα = T·g − S/(1 − α) and α·T = w.
-    dsigma = jax.lax.optimization_barrier(jnp.where(r >= 0, r * S - wg, 0.0))
-    basis = pixel_basis(tile_size, params.dtype)
-    q0, q1, q2, q3, q4, q5 = (jnp.sum(dsigma * basis[None, :, None, j], axis=1) for j in range(6))
-    m, n, a, bb, c, o = (params[..., i] for i in range(6))
-    sx = m * q0 - q1
-    sy = n * q0 - q2
-    sxx = m * m * q0 - 2.0 * m * q1 + q3
-    sxy = m * n * q0 - m * q2 - n * q1 + q4
-    syy = n * n * q0 - 2.0 * n * q2 + q5
-    do = jnp.where(o > 0, -q0 / jnp.where(o > 0, o, 1.0), 0.0)
-    dparams = jnp.stack([a * sx + bb * sy, bb * sx + c * sy, 0.5 * sxx, sxy, 0.5 * syy, do], -1)
-    zero_layout = jax.tree.map(lambda x: np.zeros(x.shape, jax.dtypes.float0), layout)
-    return dparams, dfeat, zero_layout
+    return dparams, dfeat, _zero_layout(layout)
 
 
 composite.defvjp(_composite_fwd, _composite_bwd)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5, 6))
+def composite_rows(
+    params: jax.Array,
+    table: jax.Array,
+    ids: jax.Array,
+    layout: ChunkLayout,
+    n_tiles: int,
+    tile_size: int,
+    max_chunks_per_tile: int,
+):
+    """`composite` with the channels given as a table (R, C) and entry row ids (NC, B):
+    feat = table[ids]. Same result; the backward accumulates the channel gradient straight into
+    table rows (less memory than gathering outside and scattering the (NC, B, C) cotangent)."""
+    out, saturated, _, _ = _forward(params, table[ids], layout, n_tiles, tile_size, max_chunks_per_tile)
+    return out, saturated
+
+
+def _rows_fwd(params, table, ids, layout, n_tiles, tile_size, kc):
+    out, saturated, _, (w, alpha_s) = _forward(params, table[ids], layout, n_tiles, tile_size, kc)
+    return (out, saturated), (params, table, ids, layout, w, alpha_s)
+
+
+def _rows_bwd(n_tiles, tile_size, kc, res, cts):
+    params, table, ids, layout, w, alpha_s = res
+    dout = cts[0][layout.tile]  # (NC, P, C)
+    dparams = _backward(params, table[ids], layout, w, alpha_s, dout, tile_size, kc)
+    # Channel gradient per entry as a reduction over pixels written with a unit window axis, so
+    # that the scatter into table rows needs no layout copy of the (NC, B, C) cotangent.
+    dfeat = jnp.sum(w[:, :, :, None, None] * dout[:, :, None, None, :], axis=1)
+    dn = jax.lax.ScatterDimensionNumbers(
+        update_window_dims=(2, 3), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
+    )
+    dtable = jax.lax.scatter_add(jnp.zeros_like(table), ids[..., None], dfeat, dn)
+    return dparams, dtable, np.zeros(ids.shape, jax.dtypes.float0), _zero_layout(layout)
+
+
+composite_rows.defvjp(_rows_fwd, _rows_bwd)

@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry import Camera
-from ._composite import ChunkLayout, composite, composite_stats
+from ._composite import ChunkLayout, composite, composite_rows, composite_stats
 from ._gaussians import Gaussians
 from ._project import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD, Projected, project_gaussians
 
@@ -276,7 +276,7 @@ def _tile_inputs(gaussians: Gaussians, proj: Projected, bins: Bins, camera: Came
         ],
         axis=-1,
     )
-    return params, pad(chans)[bins.ids]
+    return params, pad(chans)
 
 
 def _untile(x: jax.Array, camera: Camera, ts: int) -> jax.Array:
@@ -318,8 +318,8 @@ def render(
     F = gaussians.num_features
     proj = project_gaussians(gaussians, camera)
     bins = bin_gaussians(proj, camera, config)
-    params, chans = _tile_inputs(gaussians, proj, bins, camera, ts)
-    out, saturated = composite(params, chans, bins.layout, TX * TY, ts, kc)
+    params, table = _tile_inputs(gaussians, proj, bins, camera, ts)
+    out, saturated = composite_rows(params, table, bins.ids, bins.layout, TX * TY, ts, kc)
     img = _untile(out, camera, ts)
     rgb, feats = img[..., :3], img[..., 3 : 3 + F]
     d_acc, alpha = img[..., 3 + F], img[..., 4 + F]
@@ -330,7 +330,7 @@ def render(
     n_contrib = tile_needed = None
     if config.stats:
         n_used, n_walked = composite_stats(
-            jax.lax.stop_gradient(params), jax.lax.stop_gradient(chans), bins.layout, TX * TY, ts, kc
+            jax.lax.stop_gradient(params), jax.lax.stop_gradient(table)[bins.ids], bins.layout, TX * TY, ts, kc
         )
         n_contrib = _untile(n_used, camera, ts)
         tile_needed = jnp.minimum(n_walked, bins.counts).reshape(TY, TX)
