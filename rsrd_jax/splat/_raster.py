@@ -3,8 +3,8 @@
 Binning (no gradient): each visible Gaussian covers a box of tiles (opacity-aware extent); pairs
 whose tile the α ≥ 1/255 ellipse misses are culled exactly. Gaussians are ordered by camera
 depth (one int64 sort of `depth bits << 32 | index`), their (Gaussian, tile) pairs are expanded
-into a static budget of `max_pairs` slots in that order, and one integer sort by `tile·M + slot`
-groups them per tile, near to far. Each tile keeps its nearest `capacity` entries, cut into
+into a static budget of `max_pairs` slots in that order, and integer sorts by `tile·M + slot`
+(of two independent slot ranges, which XLA runs concurrently) group them per tile, near to far. Each tile keeps its nearest `capacity` entries, cut into
 chunks of `chunk_size`; chunks of all tiles share a static budget of `max_chunks`, so the work
 follows the real per-tile counts. Nothing is dropped silently: entries beyond `capacity` are
 counted per tile (`tile_overflow`); a tile whose dropped entries could have changed a pixel
@@ -29,6 +29,7 @@ from ._composite import ChunkLayout, composite, composite_rows, composite_stats
 from ._gaussians import Gaussians
 from ._project import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD, Projected, project_gaussians
 
+_SORT_PARTS = 2  # independent sorts of the pair keys (see `_sorted_pairs`)
 _trace_count = 0  # incremented each time `render` is traced (tests check it stays put)
 
 
@@ -178,8 +179,9 @@ def _ellipse_meets_tile(proj: Projected, g, tx, ty, ts: int):
 
 def _sorted_pairs(proj: Projected, camera: Camera, ts: int, M: int):
     """(Gaussian, tile) pairs grouped by tile, near to far inside each tile: returns the
-    Gaussian of every depth-ordered slot `g` (M,), the slot of every sorted entry `slot` (M,),
-    tile start offsets `bounds` (tiles + 1,) into the sorted entries, and the total pair count."""
+    Gaussian of every depth-ordered slot `g` (M,), a list of parts (slot of every sorted entry
+    (Mp,), tile start offsets (tiles + 1,) into them), whose per-tile runs concatenated in part
+    order are the tile's list, and the total pair count."""
     TX, TY = _grid(camera, ts)
     n_tiles = TX * TY
     u, v = proj.xy[:, 0], proj.xy[:, 1]
@@ -206,19 +208,27 @@ def _sorted_pairs(proj: Projected, camera: Camera, ts: int, M: int):
     ty = y0[g] + local // nx[g]
     tile = ty * TX + tx
     valid = (s < total) & _ellipse_meets_tile(proj, g, tx, ty, ts)
-    if n_tiles * M < 2**31 - 1:
-        key = jnp.where(valid, tile * M + s, jnp.iinfo(jnp.int32).max)
-        skey = jnp.sort(key)
-        bounds = jnp.searchsorted(skey, jnp.arange(n_tiles + 1, dtype=jnp.int32) * M)
-        slot = skey % M
+    if (n_tiles + 1) * M < 2**31 - 1:
+        # Unique int32 keys (invalid pairs after every tile). The slots are sorted in
+        # `_SORT_PARTS` independent ranges (XLA's sort is single-threaded; independent sorts run
+        # concurrently): a tile's entries are its entries of part 0, then of part 1, ..., since
+        # earlier parts hold nearer slots.
+        key = jnp.where(valid, tile * M, n_tiles * M) + s
+        q = jnp.arange(n_tiles + 1, dtype=jnp.int32) * M
+        cuts = [i * M // _SORT_PARTS for i in range(_SORT_PARTS + 1)]
+        parts = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if b > a:
+                skey = jnp.sort(key[a:b])
+                parts.append((skey % M, jnp.searchsorted(skey, q).astype(jnp.int32)))
     else:
         with jax.enable_x64(True):
             key = jnp.where(valid, (tile.astype(jnp.int64) << 32) | s, jnp.iinfo(jnp.int64).max)
             skey = jnp.sort(key)
             q = jnp.arange(n_tiles + 1, dtype=jnp.int64) << 32
             bounds = jnp.searchsorted(skey, q).astype(jnp.int32)
-            slot = (skey & 0xFFFFFFFF).astype(jnp.int32)
-    return g, slot, bounds, total
+            parts = [((skey & 0xFFFFFFFF).astype(jnp.int32), bounds)]
+    return g, parts, total
 
 
 def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins:
@@ -227,8 +237,8 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins
     proj = jax.lax.stop_gradient(proj)
     ts, B, K, NC, M = config.tile_size, config.chunk_size, config.capacity, config.max_chunks, config.max_pairs
     n = proj.depth.shape[0]
-    g, slot, bounds, total = _sorted_pairs(proj, camera, ts, M)
-    counts = (bounds[1:] - bounds[:-1]).astype(jnp.int32)
+    g, parts, total = _sorted_pairs(proj, camera, ts, M)
+    counts = sum(b[1:] - b[:-1] for _, b in parts).astype(jnp.int32)
 
     # Chunks: tile t owns ⌈min(count, K)/B⌉ consecutive chunks.
     kept = jnp.minimum(counts, K)
@@ -237,8 +247,15 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins
     total_chunks = jnp.sum(n_chunks)
     c_valid = jnp.arange(NC) < total_chunks
     e = cj[:, None] * B + jnp.arange(B, dtype=jnp.int32)[None, :]
-    pos = jnp.minimum(bounds[ct][:, None] + e, M - 1)
-    gid = g[jnp.clip(slot[pos], 0, M - 1)]
+    slot = jnp.zeros(e.shape, jnp.int32)
+    before = jnp.zeros(ct.shape, jnp.int32)  # entries of the tile in earlier parts
+    for part_slot, bounds in parts:
+        r = e - before[:, None]
+        here = (r >= 0) & (r < (bounds[ct + 1] - bounds[ct])[:, None])
+        pos = jnp.clip(bounds[ct][:, None] + r, 0, part_slot.shape[0] - 1)
+        slot = jnp.where(here, part_slot[pos], slot)
+        before = before + bounds[ct + 1] - bounds[ct]
+    gid = g[jnp.clip(slot, 0, M - 1)]
     ids = jnp.where(c_valid[:, None] & (e < kept[ct][:, None]), gid, n)
     last = coff + n_chunks - 1
     layout = ChunkLayout(
