@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import types
 
+import cv2
 import equinox as eqx
 import jax.numpy as jnp
 import jaxlie
@@ -17,12 +18,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rsrd_jax.features import EfficientNetConfig, EfficientNetExtractor, fit_pca, mask_to_grid
+from rsrd_jax.geometry import box_intrinsics, crop, roi_box
 from rsrd_jax.io import read_capture
 from rsrd_jax.parts import FieldConfig, fit_feature_field
 from rsrd_jax.splat import Gaussians
 
 
-def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extractor=None, seed: int = 0, field_iters: int = 400):
+def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extractor=None, seed: int = 0, field_iters: int = 400,
+                    crop_size: int | None = 96):  # fmt: skip
+    """`crop_size`: features come from square object crops of this size (the build's default
+    rule, `BuildConfig.feature_crop_size`); None: whole views."""
     cap = read_capture(studio_dir / "scan")
     with np.load(studio_dir / "scan/gt/scan_gt.npz") as z:
         T_wp = np.asarray(jaxlie.SE3(jnp.asarray(z["T_world_part"], jnp.float32)).as_matrix(), np.float64)
@@ -37,14 +42,26 @@ def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extract
     means, pid = np.concatenate(means), np.concatenate(pid)
     extractor = extractor or EfficientNetExtractor.pretrained(EfficientNetConfig())
     images = np.stack([cap.image(i) for i in range(len(cap))])
-    fmaps = extractor(images)
+    masks = np.stack([cap.part_mask(i) > 0 for i in range(len(cap))])
+    K = np.asarray(cap.intrinsics.K())
+    Tcw = cap.T_cam_world()
+    if crop_size:
+        boxes = []
+        for T in Tcw:
+            pc = means @ T[:3, :3].T + T[:3, 3]
+            boxes.append(roi_box((pc @ K.T)[:, :2] / pc[:, 2:3], cap.intrinsics.width, cap.intrinsics.height, 0.25))
+        feat_images = np.stack([crop(im, b, crop_size) for im, b in zip(images, boxes)])
+        feat_masks = np.stack([crop(m.astype(np.float32), b, crop_size, cv2.INTER_AREA) > 0.5 for m, b in zip(masks, boxes)])
+    else:
+        boxes = [(0.0, 0.0, None)] * len(Tcw)
+        feat_images, feat_masks = images, masks
+    fmaps = extractor(feat_images)
     F = np.asarray(fmaps.features)  # V×h×w×C
     V, h, w, C = F.shape
-    masks = np.stack([cap.part_mask(i) > 0 for i in range(len(cap))])
-    cell = mask_to_grid(masks, (h, w))
+    cell = mask_to_grid(feat_masks, (h, w))
+    view_K = [box_intrinsics(cap.intrinsics, b, h) for b in boxes] if crop_size else None
     pca = fit_pca(F[cell].reshape(-1, C), pca_dim)
     P = np.asarray(pca.project(jnp.asarray(F)))
-    K = np.asarray(cap.intrinsics.K())
     acc = np.zeros((len(means), pca_dim))
     col = np.zeros((len(means), 3))
     cnt = np.zeros(len(means))
@@ -57,8 +74,13 @@ def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extract
         d = cap.depth(i)
         ui, vi = np.clip(u.astype(int), 0, d.shape[1] - 1), np.clip(v.astype(int), 0, d.shape[0] - 1)
         ok &= np.abs(d[vi, ui] - pc[:, 2]) < 0.004
-        gi = np.clip((v * h / d.shape[0]).astype(int), 0, h - 1)
-        gj = np.clip((u * w / d.shape[1]).astype(int), 0, w - 1)
+        if crop_size:  # grid cell of the crop box
+            x0, y0, side = boxes[i]
+            gi = np.clip(((v - y0) * h / side).astype(int), 0, h - 1)
+            gj = np.clip(((u - x0) * w / side).astype(int), 0, w - 1)
+        else:
+            gi = np.clip((v * h / d.shape[0]).astype(int), 0, h - 1)
+            gj = np.clip((u * w / d.shape[1]).astype(int), 0, w - 1)
         acc[ok] += P[i, gi[ok], gj[ok]]
         col[ok] += images[i, vi[ok], ui[ok]] / 255.0
         cnt[ok] += 1
@@ -73,7 +95,7 @@ def gt_object_model(studio_dir, pca_dim: int = 32, per_part: int = 1200, extract
     )
     if field_iters:
         g, decoder, _ = fit_feature_field(
-            g, P, cell, cap.intrinsics, cap.T_cam_world(), FieldConfig(iterations=field_iters, feature_dim=16)
+            g, P, cell, cap.intrinsics, Tcw, FieldConfig(iterations=field_iters, feature_dim=16), view_intrinsics=view_K
         )
     else:
         decoder = eqx.nn.Identity()

@@ -13,6 +13,12 @@ from ._camera import (
     pixel_directions as pixel_directions,
     project_points as project_points,
 )
+from ._roi import (
+    box_intrinsics as box_intrinsics,
+    crop as crop,
+    full_frame_box as full_frame_box,
+    roi_box as roi_box,
+)
 from ._se3 import (
     look_at as look_at,
     pose_error as pose_error,

@@ -10,6 +10,7 @@ variance of each Gaussian's feature over itself and its k nearest neighbours.
 
 from __future__ import annotations
 
+import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -61,19 +62,48 @@ def grid_intrinsics(intrinsics: Intrinsics, grid_hw: tuple[int, int]) -> Intrins
     return intrinsics.scaled(int(grid_hw[1]), int(grid_hw[0]))
 
 
+def _stack_intrinsics(view_intrinsics) -> jax.Array:
+    return jnp.asarray([[float(k.fx), float(k.fy), float(k.cx), float(k.cy)] for k in view_intrinsics], jnp.float32)
+
+
+def _view_intrinsics(kvec: jax.Array, grid_hw: tuple[int, int]) -> Intrinsics:
+    return Intrinsics(kvec[0], kvec[1], kvec[2], kvec[3], int(grid_hw[1]), int(grid_hw[0]))
+
+
+def _fit_render_config(gaussians: Gaussians, view_intrinsics, T_cam_world: np.ndarray):
+    """One render budget covering every given view (each may have its own intrinsics)."""
+    cfgs = [size_render_config(gaussians, k, np.asarray(T)[None], GRID_TILE_SIZE, 256)
+            for k, T in zip(view_intrinsics, T_cam_world)]  # fmt: skip
+    return dataclasses.replace(cfgs[0], max_chunks=max(c.max_chunks for c in cfgs),
+                               max_pairs=max(c.max_pairs for c in cfgs))  # fmt: skip
+
+
+def _per_view_grid_intrinsics(intrinsics, grid_hw, V, view_intrinsics):
+    if view_intrinsics is None:
+        return [grid_intrinsics(intrinsics, grid_hw)] * V
+    view_intrinsics = list(view_intrinsics)
+    if len(view_intrinsics) != V:
+        raise ValueError(f"view_intrinsics: {len(view_intrinsics)} entries for {V} views")
+    for i, k in enumerate(view_intrinsics):
+        if (k.height, k.width) != tuple(grid_hw):
+            raise ValueError(f"view_intrinsics[{i}] is {k.width}×{k.height}, expected the grid {grid_hw[1]}×{grid_hw[0]}")
+    return view_intrinsics
+
+
 def _smooth(features, knn_idx):
     nb = features[knn_idx]  # n, k+1, F
     return jnp.mean(jnp.var(nb, axis=1))
 
 
 @eqx.filter_jit
-def _field_block(feats, decoder, opt_state, views, gaussians, targets, valid, Ts, intr, rcfg, knn_idx, optimizer, cfg_arr):
+def _field_block(feats, decoder, opt_state, views, gaussians, targets, valid, Ts, kvecs, rcfg, knn_idx, optimizer, cfg_arr):
     alpha_thr, smooth_w = cfg_arr[0], cfg_arr[1]
+    grid_hw = targets.shape[1:3]
 
     def loss_fn(params, v):
         f, dec = params
         g = eqx.tree_at(lambda x: x.features, gaussians, f)
-        cam = Camera(intr, jaxlie.SE3(Ts.wxyz_xyz[v]))
+        cam = Camera(_view_intrinsics(kvecs[v], grid_hw), jaxlie.SE3(Ts.wxyz_xyz[v]))
         out = render(g, cam, rcfg)
         pred = decode_rendered(dec, out.features, out.alpha)
         w = valid[v] & (jax.lax.stop_gradient(out.alpha) >= alpha_thr)
@@ -100,6 +130,7 @@ def fit_feature_field(
     T_cam_world: np.ndarray,
     config: FieldConfig = FieldConfig(),
     progress: bool = False,
+    view_intrinsics=None,
 ) -> tuple[Gaussians, FeatureDecoder, dict]:
     """Fits per-Gaussian features and the decoder to PCA-space feature maps.
 
@@ -109,6 +140,8 @@ def fit_feature_field(
         valid: V×h×w bool object cells.
         intrinsics: full-resolution image intrinsics (the grid camera is derived from them).
         T_cam_world: V×4×4 view poses.
+        view_intrinsics: optional V per-view intrinsics *at grid resolution* (e.g. object crops,
+            `box_intrinsics(K, box, grid)`); replaces the grid camera derived from `intrinsics`.
 
     Returns:
         (Gaussians with N×F features, decoder, history).
@@ -120,10 +153,10 @@ def fit_feature_field(
     feats = 0.1 * jax.random.normal(k1, (n, config.feature_dim), jnp.float32)
     decoder = FeatureDecoder.create(config.feature_dim, D, config.decoder_width, config.decoder_layers, k2)
     g = eqx.tree_at(lambda x: x.features, gaussians, feats)
-    gi = grid_intrinsics(intrinsics, (gh, gw))
+    gis = _per_view_grid_intrinsics(intrinsics, (gh, gw), V, view_intrinsics)
     rng = np.random.default_rng(config.seed)
     sample = rng.choice(V, min(V, 6), replace=False)
-    rcfg = size_render_config(g, gi, np.asarray(T_cam_world)[sample], GRID_TILE_SIZE, 256)
+    rcfg = _fit_render_config(g, [gis[i] for i in sample], np.asarray(T_cam_world)[sample])
     means = np.asarray(gaussians.means)
     k = min(config.knn + 1, n)
     _, idx = cKDTree(means).query(means, k=k)
@@ -145,7 +178,7 @@ def fit_feature_field(
         nb = min(200, config.iterations - done)
         views = jnp.asarray(rng.integers(0, V, nb), jnp.int32)
         feats, decoder, opt_state, mse = _field_block(
-            feats, decoder, opt_state, views, g, tj, vj, Ts, gi, rcfg, knn_idx, optimizer, cfg_arr
+            feats, decoder, opt_state, views, g, tj, vj, Ts, _stack_intrinsics(gis), rcfg, knn_idx, optimizer, cfg_arr
         )
         done += nb
         hist.append({"iteration": done, "mse": float(mse)})
@@ -158,13 +191,20 @@ def fit_feature_field(
 
 
 def render_decoded(
-    gaussians: Gaussians, decoder: FeatureDecoder, intrinsics: Intrinsics, T_cam_world: np.ndarray, grid_hw: tuple[int, int]
+    gaussians: Gaussians,
+    decoder: FeatureDecoder,
+    intrinsics: Intrinsics,
+    T_cam_world: np.ndarray,
+    grid_hw: tuple[int, int],
+    view_intrinsics=None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Decoded PCA-space feature maps (V×h×w×D) and alphas (V×h×w) at grid resolution."""
-    gi = grid_intrinsics(intrinsics, grid_hw)
-    rcfg = size_render_config(gaussians, gi, np.asarray(T_cam_world), GRID_TILE_SIZE, 256)
+    """Decoded PCA-space feature maps (V×h×w×D) and alphas (V×h×w) at grid resolution
+    (`view_intrinsics` as in `fit_feature_field`)."""
+    T_cam_world = np.asarray(T_cam_world)
+    gis = _per_view_grid_intrinsics(intrinsics, grid_hw, len(T_cam_world), view_intrinsics)
+    rcfg = _fit_render_config(gaussians, gis, T_cam_world)
     fs, als = [], []
-    for T in np.asarray(T_cam_world):
+    for gi, T in zip(gis, T_cam_world):
         cam = Camera(gi, jaxlie.SE3.from_matrix(jnp.asarray(T, jnp.float32)))
         out = render(gaussians, cam, rcfg)
         fs.append(np.asarray(decode_rendered(decoder, out.features, out.alpha)))
