@@ -220,8 +220,21 @@ def composite_rows(
     return out, saturated
 
 
+def _materialise(xs, layout: ChunkLayout):
+    """Identity that XLA cannot see through (CPU only): the values leave a conditional whose
+    (always true) predicate is only known at run time, so they are computed once and stored,
+    and the backward cannot re-derive them from (so keep alive) the forward intermediates they
+    came from. That keeps the backward's temporaries under the 32 MiB that glibc serves from
+    its heap (see the module docstring). Elsewhere a device-side predicate would cost a sync."""
+    if jax.default_backend() != "cpu":
+        return xs
+    pred = jnp.all(layout.count >= 0)
+    return jax.lax.cond(pred, lambda x: x, lambda x: jax.tree.map(jnp.zeros_like, x), xs)
+
+
 def _rows_fwd(params, table, ids, layout, n_tiles, tile_size, kc):
     out, saturated, _, (w, alpha_s) = _forward(params, table[ids], layout, n_tiles, tile_size, kc)
+    w, alpha_s = _materialise((w, alpha_s), layout)
     return (out, saturated), (params, table, ids, layout, w, alpha_s)
 
 
@@ -229,9 +242,10 @@ def _rows_bwd(n_tiles, tile_size, kc, res, cts):
     params, table, ids, layout, w, alpha_s = res
     dout = cts[0][layout.tile]  # (NC, P, C)
     dparams = _backward(params, table[ids], layout, w, alpha_s, dout, tile_size, kc)
-    # Channel gradient per entry as a reduction over pixels written with a unit window axis, so
-    # that the scatter into table rows needs no layout copy of the (NC, B, C) cotangent.
-    dfeat = jnp.sum(w[:, :, :, None, None] * dout[:, :, None, None, :], axis=1)
+    # Channel gradient per entry as an unrolled sum over pixels (one elementwise fusion, split
+    # across threads; a reduction goes to a slower single-threaded call), written with a unit
+    # window axis so that the scatter into table rows needs no layout copy of it.
+    dfeat = sum(w[:, p, :, None, None] * dout[:, p, None, None, :] for p in range(dout.shape[1]))
     dn = jax.lax.ScatterDimensionNumbers(
         update_window_dims=(2, 3), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
     )
