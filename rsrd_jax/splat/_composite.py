@@ -220,21 +220,23 @@ def composite_rows(
     return out, saturated
 
 
-def _materialise(xs, layout: ChunkLayout):
+def materialise(xs):
     """Identity that XLA cannot see through (CPU only): the values leave a conditional whose
-    (always true) predicate is only known at run time, so they are computed once and stored,
-    and the backward cannot re-derive them from (so keep alive) the forward intermediates they
-    came from. That keeps the backward's temporaries under the 32 MiB that glibc serves from
-    its heap (see the module docstring). Elsewhere a device-side predicate would cost a sync."""
+    (always true) predicate is only known at run time, so they are computed once and stored.
+    Later consumers then can neither re-derive them from (and so keep alive) the intermediates
+    they came from, nor recompute them inside every element of a gather. Elsewhere a
+    device-side predicate would cost a host sync, and fusion is left to the compiler."""
     if jax.default_backend() != "cpu":
         return xs
-    pred = jnp.all(layout.count >= 0)
+    v = jax.tree.leaves(xs)[0].reshape(-1)[0]
+    pred = jnp.isnan(v) | ~jnp.isnan(v)
     return jax.lax.cond(pred, lambda x: x, lambda x: jax.tree.map(jnp.zeros_like, x), xs)
 
 
 def _rows_fwd(params, table, ids, layout, n_tiles, tile_size, kc):
     out, saturated, _, (w, alpha_s) = _forward(params, table[ids], layout, n_tiles, tile_size, kc)
-    w, alpha_s = _materialise((w, alpha_s), layout)
+    # Stored once: keeps the backward's temporaries under the 32 MiB glibc serves from its heap.
+    w, alpha_s = materialise((w, alpha_s))
     return (out, saturated), (params, table, ids, layout, w, alpha_s)
 
 

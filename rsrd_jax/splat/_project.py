@@ -66,6 +66,10 @@ def quat_to_rotmat(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3 3"]:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+def _dot3(a: jax.Array, b: jax.Array) -> jax.Array:
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
     """EWA-projects every Gaussian into `camera` (differentiable in means, rotations, scales,
     opacities and the camera pose; culling decisions carry no gradient).
@@ -77,14 +81,17 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
     dtype = gaussians.means.dtype
     R_cw = camera.T_cam_world.rotation().as_matrix().astype(dtype)
     t_cw = camera.T_cam_world.translation().astype(dtype)
-    p = gaussians.means @ R_cw.T + t_cw
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    # Products over axes of size 3 are written out: XLA CPU sends tiny contractions and
+    # reductions to a single-threaded library call that costs far more than the arithmetic.
+    mx, my, mz = gaussians.means[:, 0], gaussians.means[:, 1], gaussians.means[:, 2]
+    x, y, z = (R_cw[i, 0] * mx + R_cw[i, 1] * my + R_cw[i, 2] * mz + t_cw[i] for i in range(3))
     in_depth = (z > NEAR_PLANE) & (z < FAR_PLANE)
     z_safe = jnp.where(in_depth, z, 1.0)
 
     # Camera-frame covariance: M = R_cw R(q) S, Σ_c = M Mᵀ.
     R = quat_to_rotmat(gaussians.unit_quats())
-    M = jnp.einsum("ij,njk->nik", R_cw, R) * gaussians.scales()[:, None, :]
+    sc = gaussians.scales()
+    M0, M1, M2 = ((R_cw[i, 0] * R[:, 0, :] + R_cw[i, 1] * R[:, 1, :] + R_cw[i, 2] * R[:, 2, :]) * sc for i in range(3))
     fx, fy, cx, cy = (v.astype(dtype) for v in (intr.fx, intr.fy, intr.cx, intr.cy))
     W, H = intr.width, intr.height
     tan_x = 0.5 * W / fx
@@ -92,11 +99,11 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
     xz = jnp.clip(x / z_safe, -(cx / fx + FRUSTUM_MARGIN * tan_x), (W - cx) / fx + FRUSTUM_MARGIN * tan_x)
     yz = jnp.clip(y / z_safe, -(cy / fy + FRUSTUM_MARGIN * tan_y), (H - cy) / fy + FRUSTUM_MARGIN * tan_y)
     # Rows of J M (2×3 each): J = [[fx/z, 0, -fx·xz/z], [0, fy/z, -fy·yz/z]].
-    JM0 = (fx / z_safe)[:, None] * (M[:, 0, :] - xz[:, None] * M[:, 2, :])
-    JM1 = (fy / z_safe)[:, None] * (M[:, 1, :] - yz[:, None] * M[:, 2, :])
-    s00 = jnp.sum(JM0 * JM0, -1) + EPS2D
-    s01 = jnp.sum(JM0 * JM1, -1)
-    s11 = jnp.sum(JM1 * JM1, -1) + EPS2D
+    JM0 = (fx / z_safe)[:, None] * (M0 - xz[:, None] * M2)
+    JM1 = (fy / z_safe)[:, None] * (M1 - yz[:, None] * M2)
+    s00 = _dot3(JM0, JM0) + EPS2D
+    s01 = _dot3(JM0, JM1)
+    s11 = _dot3(JM1, JM1) + EPS2D
     det = s00 * s11 - s01 * s01
     ok_det = det > 0
     det_safe = jnp.where(ok_det, det, 1.0)

@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry import Camera
-from ._composite import ChunkLayout, composite, composite_rows, composite_stats
+from ._composite import ChunkLayout, composite, composite_rows, composite_stats, materialise
 from ._gaussians import Gaussians
 from ._project import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD, Projected, project_gaussians
 
@@ -333,7 +333,8 @@ def render(
     TX, TY = _grid(camera, ts)
     kc = config.capacity // config.chunk_size
     F = gaussians.num_features
-    proj = project_gaussians(gaussians, camera)
+    # Stored once, else XLA recomputes the projection inside every element of the gathers below.
+    proj = materialise(project_gaussians(gaussians, camera))
     bins = bin_gaussians(proj, camera, config)
     params, table = _tile_inputs(gaussians, proj, bins, camera, ts)
     out, saturated = composite_rows(params, table, bins.ids, bins.layout, TX * TY, ts, kc)
