@@ -134,7 +134,11 @@ def _backward(params, feat, layout: ChunkLayout, w, alpha_s, dout, tile_size: in
     r = jnp.where(alpha_s > 0, a / (1.0 - a), 0.0)
     dsigma = jnp.where((w > 0) & (alpha_s > 0), r * S - wg, 0.0)
     basis = pixel_basis(tile_size, params.dtype)
-    q0, q1, q2, q3, q4, q5 = (jnp.sum(dsigma * basis[None, :, None, j], axis=1) for j in range(6))
+    # The 6 reductions over pixels against the basis as one unrolled sum (an elementwise fusion
+    # split across threads; reductions go to single-threaded calls on XLA CPU).
+    dsigma = materialise(dsigma)
+    q = sum(dsigma[:, p, :, None] * basis[p] for p in range(basis.shape[0]))
+    q0, q1, q2, q3, q4, q5 = (q[..., j] for j in range(6))
     m, n, a_, bb, c, o = (params[..., i] for i in range(6))
     sx = m * q0 - q1
     sy = n * q0 - q2
