@@ -19,17 +19,19 @@ can produce for a positive-definite conic; here such a pair gets α = min(MAX_AL
 
 Backward (the analytic form of gsplat's replay, vectorised): with g_k = ⟨dout, feat_k⟩ and
 S_k = Σ_{j>k} w_j g_j over the tile's list, dα_k = used·(T_k g_k − S_k / (1 − α_k)), so
-dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout; the
-reductions over pixels against the basis are 6 fused reductions. Masks (kept, used, capped) carry
-no gradient, as in gsplat.
+dσ = −α·dα = α/(1 − α)·S_k − w_k g_k where α is not capped (0 where capped); dfeat = wᵀ·dout;
+the 6 reductions over pixels against the basis are one unrolled sum. Masks (kept, used, capped)
+carry no gradient, as in gsplat.
 
 Memory matters for speed on CPU: XLA allocates one temporary arena per call, and glibc serves
 arenas above 32 MiB with a fresh mmap each time, so every call then pays page faults on the
 whole arena (≈ 10 ms at 10k Gaussians, 128², 34 channels). Hence the backward keeps only w and
-the signed α (used ⇔ w > 0), and `composite_rows` takes the channels as a table plus row ids so
-that the channel cotangent goes straight into table rows, computed as a reduction written with a
-unit window axis (a batched GEMM output needs an extra (NC, B, C) layout copy before XLA's
-scatter).
+the signed α (used ⇔ w > 0), stored once (`materialise`), and `composite_rows` takes the channels
+as a table plus row ids so that the channel cotangent goes straight into table rows, computed as
+an unrolled sum over pixels written with a unit window axis (a batched GEMM output needs an
+extra (NC, B, C) layout copy before XLA's scatter). XLA CPU also runs reductions and small GEMMs
+as single-threaded library calls, so short sums over pixels are written out as elementwise
+fusions, which it splits across threads.
 """
 
 from __future__ import annotations

@@ -91,7 +91,8 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
     # Camera-frame covariance: M = R_cw R(q) S, Σ_c = M Mᵀ.
     R = quat_to_rotmat(gaussians.unit_quats())
     sc = gaussians.scales()
-    M0, M1, M2 = ((R_cw[i, 0] * R[:, 0, :] + R_cw[i, 1] * R[:, 1, :] + R_cw[i, 2] * R[:, 2, :]) * sc for i in range(3))
+    # Rows of M = R_cw R(q) S.
+    M0, M1, M2 = (sc * (R_cw[i, 0] * R[:, 0] + R_cw[i, 1] * R[:, 1] + R_cw[i, 2] * R[:, 2]) for i in range(3))
     fx, fy, cx, cy = (v.astype(dtype) for v in (intr.fx, intr.fy, intr.cx, intr.cy))
     W, H = intr.width, intr.height
     tan_x = 0.5 * W / fx

@@ -4,13 +4,13 @@ Binning (no gradient): each visible Gaussian covers a box of tiles (opacity-awar
 whose tile the α ≥ 1/255 ellipse misses are culled exactly. Gaussians are ordered by camera
 depth (one int64 sort of `depth bits << 32 | index`), their (Gaussian, tile) pairs are expanded
 into a static budget of `max_pairs` slots in that order, and integer sorts by `tile·M + slot`
-(of two independent slot ranges, which XLA runs concurrently) group them per tile, near to far. Each tile keeps its nearest `capacity` entries, cut into
-chunks of `chunk_size`; chunks of all tiles share a static budget of `max_chunks`, so the work
-follows the real per-tile counts. Nothing is dropped silently: entries beyond `capacity` are
-counted per tile (`tile_overflow`); a tile whose dropped entries could have changed a pixel
-(some pixel had not reached the transmittance stop) or that lost chunks to the chunk budget is
-flagged in `tile_truncated`; excess pairs and chunks are counted in `pairs_overflow` and
-`chunks_overflow`.
+(of two independent slot ranges, which XLA runs concurrently) group them per tile, near to far.
+Each tile keeps its nearest `capacity` entries, cut into chunks of `chunk_size`; chunks of all
+tiles share a static budget of `max_chunks`, so the work follows the real per-tile counts.
+Nothing is dropped silently: entries beyond `capacity` are counted per tile (`tile_overflow`); a
+tile whose dropped entries could have changed a pixel (some pixel had not reached the
+transmittance stop) or that lost chunks to the chunk budget is flagged in `tile_truncated`;
+excess pairs and chunks are counted in `pairs_overflow` and `chunks_overflow`.
 """
 
 from __future__ import annotations
