@@ -371,8 +371,8 @@ def test_choose_config_host_lists_cover_device_lists():
 
 
 def test_composite_rows_matches_composite():
-    """The table + row-ids compositor (used by `render`) and the public `composite` agree in
-    value and VJP."""
+    """The table + row-ids compositor used by `render` (depth and alpha apart from the channel
+    GEMM) and the public `composite` (them as two more channels) agree in value and VJP."""
     from rsrd_jax.splat import _composite
 
     g = _scene(4)
@@ -382,18 +382,29 @@ def test_composite_rows_matches_composite():
     kc = CFG.capacity // CFG.chunk_size
 
     @jax.jit
-    def both(g, ct):
+    def both(g, ct, ct_aux):
         proj = project_gaussians(g, cam)
         bins = _raster.bin_gaussians(proj, cam, CFG)
-        params, table = _raster._tile_inputs(g, proj, bins, cam, ts)
-        rows = lambda p, t: _composite.composite_rows(p, t, bins.ids, bins.layout, TX * TY, ts, kc)[0]  # noqa: E731
-        plain = lambda p, t: _composite.composite(p, t[bins.ids], bins.layout, TX * TY, ts, kc)[0]  # noqa: E731
-        o1, vjp1 = jax.vjp(rows, params, table)
-        o2, vjp2 = jax.vjp(plain, params, table)
-        return o1, o2, vjp1(ct), vjp2(ct)
+        params, table, depth = _raster._tile_inputs(g, proj, bins, cam, ts)
 
-    ct = jax.random.normal(jax.random.PRNGKey(0), (TX * TY, ts * ts, 3 + 5 + 2))
-    o1, o2, d1, d2 = both(g, ct)
-    np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-6)
+        def rows(p, t, d):
+            out, aux, _ = _composite.composite_rows(p, t, d, bins.ids, bins.layout, TX * TY, ts, kc)
+            return out, aux
+
+        def plain(p, t, d):  # depth and alpha as two more channels
+            chans = jnp.concatenate([t, d[:, None], jnp.ones_like(d)[:, None]], -1)[bins.ids]
+            out = _composite.composite(p, chans, bins.layout, TX * TY, ts, kc)[0]
+            return out[..., :-2], out[..., -2:]
+
+        o1, vjp1 = jax.vjp(rows, params, table, depth)
+        o2, vjp2 = jax.vjp(plain, params, table, depth)
+        return o1, o2, vjp1((ct, ct_aux)), vjp2((ct, ct_aux))
+
+    k1, k2 = jax.random.split(jax.random.PRNGKey(0))
+    ct = jax.random.normal(k1, (TX * TY, ts * ts, 3 + 5))
+    ct_aux = jax.random.normal(k2, (TX * TY, ts * ts, 2))
+    o1, o2, d1, d2 = both(g, ct, ct_aux)
+    for a, b in zip(o1, o2):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
     for a, b in zip(d1, d2):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * float(np.abs(b).max()))

@@ -31,7 +31,8 @@ as a table plus row ids so that the channel cotangent goes straight into table r
 an unrolled sum over pixels written with a unit window axis (a batched GEMM output needs an
 extra (NC, B, C) layout copy before XLA's scatter). XLA CPU also runs reductions and small GEMMs
 as single-threaded library calls, so short sums over pixels are written out as elementwise
-fusions, which it splits across threads.
+fusions, which it splits across threads. `composite_rows` also composites depth and alpha apart
+from the channel GEMM, which keeps its width as given (32 is much faster than 34).
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ def _tri(b: int, reverse: bool, dtype) -> jax.Array:
     return ((i[:, None] >= i[None, :]) if reverse else (i[:, None] <= i[None, :])).astype(dtype)
 
 
-def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc: int):
+def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc: int, z=None):
     b = params.shape[1]
     raw = jnp.exp(-_sigma(params, tile_size))
     alpha = jnp.minimum(raw, MAX_ALPHA)
@@ -121,14 +122,17 @@ def _forward(params, feat, layout: ChunkLayout, n_tiles: int, tile_size: int, kc
     out = jax.ops.segment_sum(out_c, layout.tile, n_tiles, indices_are_sorted=True)
     sat_c = jnp.all(L[..., -1] <= _LOG_T_STOP, axis=-1)
     saturated = jnp.where(layout.last >= 0, sat_c[jnp.maximum(layout.last, 0)], True)
+    if z is not None:  # (Σ w·z, Σ w) apart from the channel GEMM
+        zk = jnp.stack([z, jnp.ones_like(z)], -1)
+        aux = jnp.einsum("cpk,ckj->cpj", w, zk)
+        out = (out, jax.ops.segment_sum(aux, layout.tile, n_tiles, indices_are_sorted=True))
     return out, saturated, (L - l, used), (w, alpha_s)
 
 
-def _backward(params, feat, layout: ChunkLayout, w, alpha_s, dout, tile_size: int, kc: int):
-    """Gradient of the entry parameters (NC, B, 6) given the per-chunk output cotangent dout
-    (NC, P, C) and the residuals w and signed α."""
+def _backward(params, layout: ChunkLayout, w, alpha_s, g, tile_size: int, kc: int):
+    """Gradient of the entry parameters (NC, B, 6) given g = ⟨dout, feat⟩ per (chunk, pixel,
+    entry) and the residuals w and signed α."""
     b = params.shape[1]
-    g = jnp.einsum("cpd,ckd->cpk", dout, feat)
     wg = w * g
     within = wg @ _tri(b, True, wg.dtype)
     S = within - wg + _chunk_carry(within[..., 0], layout, kc, reverse=True)[..., None]
@@ -202,7 +206,8 @@ def _composite_fwd(params, feat, layout, n_tiles, tile_size, kc):
 def _composite_bwd(n_tiles, tile_size, kc, res, cts):
     params, feat, layout, w, alpha_s = res
     dout = cts[0][layout.tile]  # (NC, P, C)
-    dparams = _backward(params, feat, layout, w, alpha_s, dout, tile_size, kc)
+    g = jnp.einsum("cpd,ckd->cpk", dout, feat)
+    dparams = _backward(params, layout, w, alpha_s, g, tile_size, kc)
     dfeat = jnp.einsum("cpk,cpd->ckd", w, dout)
     return dparams, dfeat, _zero_layout(layout)
 
@@ -210,21 +215,35 @@ def _composite_bwd(n_tiles, tile_size, kc, res, cts):
 composite.defvjp(_composite_fwd, _composite_bwd)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5, 6))
+@functools.partial(jax.custom_vjp, nondiff_argnums=(5, 6, 7))
 def composite_rows(
     params: jax.Array,
     table: jax.Array,
+    depth: jax.Array,
     ids: jax.Array,
     layout: ChunkLayout,
     n_tiles: int,
     tile_size: int,
     max_chunks_per_tile: int,
 ):
-    """`composite` with the channels given as a table (R, C) and entry row ids (NC, B):
-    feat = table[ids]. Same result; the backward accumulates the channel gradient straight into
-    table rows (less memory than gathering outside and scattering the (NC, B, C) cotangent)."""
-    out, saturated, _, _ = _forward(params, table[ids], layout, n_tiles, tile_size, max_chunks_per_tile)
-    return out, saturated
+    """`composite` with the channels given as a table (R, C) and entry row ids (NC, B), and
+    depth and alpha composited apart from the channel GEMM (whose width then stays as given).
+
+    Args:
+        params, layout, n_tiles, tile_size, max_chunks_per_tile: as in `composite`.
+        table: (R, C) channels per row; feat = table[ids].
+        depth: (R,) camera depth per row.
+        ids: (NC, B) row of every entry.
+
+    Returns:
+        (out (T, P, C), aux (T, P, 2) = (Σ w·depth, Σ w), saturated (T,)). The backward
+        accumulates the channel gradient straight into table rows (less memory than gathering
+        outside and scattering the (NC, B, C) cotangent).
+    """
+    (out, aux), saturated, _, _ = _forward(
+        params, table[ids], layout, n_tiles, tile_size, max_chunks_per_tile, depth[ids]
+    )
+    return out, aux, saturated
 
 
 def materialise(xs):
@@ -240,26 +259,35 @@ def materialise(xs):
     return jax.lax.cond(pred, lambda x: x, lambda x: jax.tree.map(jnp.zeros_like, x), xs)
 
 
-def _rows_fwd(params, table, ids, layout, n_tiles, tile_size, kc):
-    out, saturated, _, (w, alpha_s) = _forward(params, table[ids], layout, n_tiles, tile_size, kc)
+def _rows_fwd(params, table, depth, ids, layout, n_tiles, tile_size, kc):
+    (out, aux), saturated, _, (w, alpha_s) = _forward(
+        params, table[ids], layout, n_tiles, tile_size, kc, depth[ids]
+    )
     # Stored once: keeps the backward's temporaries under the 32 MiB glibc serves from its heap.
     w, alpha_s = materialise((w, alpha_s))
-    return (out, saturated), (params, table, ids, layout, w, alpha_s)
+    return (out, aux, saturated), (params, table, depth, ids, layout, w, alpha_s)
 
 
 def _rows_bwd(n_tiles, tile_size, kc, res, cts):
-    params, table, ids, layout, w, alpha_s = res
+    params, table, depth, ids, layout, w, alpha_s = res
     dout = cts[0][layout.tile]  # (NC, P, C)
-    dparams = _backward(params, table[ids], layout, w, alpha_s, dout, tile_size, kc)
+    daux = cts[1][layout.tile]  # (NC, P, 2)
+    z = depth[ids]
+    g = jnp.einsum("cpd,ckd->cpk", dout, table[ids])
+    g = g + daux[..., 0:1] * z[:, None, :] + daux[..., 1:2]
+    dparams = _backward(params, layout, w, alpha_s, g, tile_size, kc)
     # Channel gradient per entry as an unrolled sum over pixels (one elementwise fusion, split
     # across threads; a reduction goes to a slower single-threaded call), written with a unit
     # window axis so that the scatter into table rows needs no layout copy of it.
-    dfeat = sum(w[:, p, :, None, None] * dout[:, p, None, None, :] for p in range(dout.shape[1]))
+    P = dout.shape[1]
+    dfeat = sum(w[:, p, :, None, None] * dout[:, p, None, None, :] for p in range(P))
     dn = jax.lax.ScatterDimensionNumbers(
         update_window_dims=(2, 3), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
     )
     dtable = jax.lax.scatter_add(jnp.zeros_like(table), ids[..., None], dfeat, dn)
-    return dparams, dtable, np.zeros(ids.shape, jax.dtypes.float0), _zero_layout(layout)
+    dz = sum(w[:, p, :] * daux[:, p, 0:1] for p in range(P))
+    ddepth = jnp.zeros_like(depth).at[ids].add(dz)
+    return dparams, dtable, ddepth, np.zeros(ids.shape, jax.dtypes.float0), _zero_layout(layout)
 
 
 composite_rows.defvjp(_rows_fwd, _rows_bwd)

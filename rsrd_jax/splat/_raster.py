@@ -275,7 +275,8 @@ def bin_gaussians(proj: Projected, camera: Camera, config: RenderConfig) -> Bins
 
 
 def _tile_inputs(gaussians: Gaussians, proj: Projected, bins: Bins, camera: Camera, ts: int):
-    """Gathers (NC, B, 6) geometry and (NC, B, C) channels of the listed Gaussians."""
+    """(NC, B, 6) geometry of the listed Gaussians, and the channel table (N + 1, 3 + F) and
+    depth table (N + 1,) they are read from (row N is the empty slot)."""
     TX, _ = _grid(camera, ts)
     dtype = proj.xy.dtype
     pad = lambda x: jnp.concatenate([x, jnp.zeros((1, *x.shape[1:]), x.dtype)], 0)  # noqa: E731
@@ -284,16 +285,8 @@ def _tile_inputs(gaussians: Gaussians, proj: Projected, bins: Bins, camera: Came
     geo = jnp.concatenate([proj.xy, proj.conic, proj.opacity[:, None]], axis=-1)
     geo = pad(geo)[bins.ids]
     params = jnp.concatenate([geo[..., :2] - centre.astype(dtype)[:, None, :], geo[..., 2:]], -1)
-    chans = jnp.concatenate(
-        [
-            gaussians.colours.astype(dtype),
-            gaussians.features.astype(dtype),
-            proj.depth[:, None],
-            jnp.ones_like(proj.depth)[:, None],
-        ],
-        axis=-1,
-    )
-    return params, pad(chans)
+    chans = jnp.concatenate([gaussians.colours.astype(dtype), gaussians.features.astype(dtype)], -1)
+    return params, pad(chans), pad(proj.depth)
 
 
 def _untile(x: jax.Array, camera: Camera, ts: int) -> jax.Array:
@@ -336,11 +329,12 @@ def render(
     # Stored once, else XLA recomputes the projection inside every element of the gathers below.
     proj = materialise(project_gaussians(gaussians, camera))
     bins = bin_gaussians(proj, camera, config)
-    params, table = _tile_inputs(gaussians, proj, bins, camera, ts)
-    out, saturated = composite_rows(params, table, bins.ids, bins.layout, TX * TY, ts, kc)
+    params, table, depth = _tile_inputs(gaussians, proj, bins, camera, ts)
+    out, aux, saturated = composite_rows(params, table, depth, bins.ids, bins.layout, TX * TY, ts, kc)
     img = _untile(out, camera, ts)
     rgb, feats = img[..., :3], img[..., 3 : 3 + F]
-    d_acc, alpha = img[..., 3 + F], img[..., 4 + F]
+    aux = _untile(aux, camera, ts)
+    d_acc, alpha = aux[..., 0], aux[..., 1]
     if background is not None:
         rgb = rgb + (1.0 - alpha)[..., None] * jnp.asarray(background, rgb.dtype)
     overflow = jnp.maximum(bins.counts - config.capacity, 0)
