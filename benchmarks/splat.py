@@ -6,12 +6,14 @@ opacity 0.1–0.9, random colours and C − 3 feature channels. Loss for the bac
 of RGB, features, accumulated depth and alpha (all channels in one pass, as tracking uses them).
 Budgets come from `choose_config(..., headroom=1.0)` (exact for this view, no truncation).
 `cpu_ms` is the median process CPU time per call (both threads): on a shared machine it is a
-steadier number than wall time.
+steadier number than wall time; `load_1min` is the load average before and after the timing and
+`temp_mib` XLA's temporary arena per call.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import statistics
 import time
 
@@ -86,13 +88,22 @@ def _case(n: int, width: int, height: int, channels: int, repeat: int) -> list[d
     case = {"n": n, "width": width, "height": height, "channels": channels}
     out = []
     for mode, fn in (("fwd", fwd), ("fwd+bwd", fwd_bwd)):
+        load = os.getloadavg()[0]
         compile_s, median_ms = measure(fn, g, T, repeat=repeat)
         cpu = []
         for _ in range(repeat):
             c0 = time.process_time()
             jax.block_until_ready(fn(g, T))
             cpu.append((time.process_time() - c0) * 1e3)
-        extra = {"cpu_ms": statistics.median(cpu), "cpu_ms_min": min(cpu)}
+        temp = jax.jit(lambda g, T: fn(g, T)).lower(g, T).compile().memory_analysis()
+        extra = {
+            "cpu_ms": statistics.median(cpu),
+            "cpu_ms_min": min(cpu),
+            # Machine load (1-min average, both cores) around the timing: >1 means other jobs.
+            "load_1min": [load, os.getloadavg()[0]],
+            # XLA's temporary arena per call; above 32 MiB glibc maps it afresh on every call.
+            "temp_mib": temp.temp_size_in_bytes / 2**20 if temp is not None else None,
+        }
         out.append(record("splat", {**case, "mode": mode}, median_ms, compile_s, {**metrics, **extra}))
     return out
 
