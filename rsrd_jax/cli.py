@@ -181,7 +181,7 @@ def cmd_track(a: argparse.Namespace) -> int:
         mono = NoMonoDepth()
     else:
         mono = OnnxDepthAnything(a.mono_depth)
-    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, rgb=a.w_rgb)
+    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb)
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
@@ -406,6 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--w-feature", type=float, default=1.0, help="feature loss weight")
     tr.add_argument("--w-depth", type=float, default=0.2, help="depth ranking loss weight (0: no depth)")
     tr.add_argument("--w-arap", type=float, default=0.2, help="ARAP loss weight (0: no ARAP)")
+    tr.add_argument("--w-touch", type=float, default=0.0, help="as-touching loss weight (sliding contacts allowed)")
     tr.add_argument("--w-rgb", type=float, default=0.05, help="photometric L1 weight")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--no-video", action="store_true", help="skip the overlay video")

@@ -6,7 +6,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from rsrd_jax.track import arap_loss, barron_loss, depth_ranking_loss, feature_loss, pose_smoothness, seed_rotations
+from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, seed_rotations
 
 
 def test_barron_special_cases():
@@ -41,6 +41,48 @@ def test_arap_zero_at_rest_and_under_rigid_motion_rises_on_separation(key):
     assert 0 < l1 < l2
     # a smaller alpha (separable objects) penalises large separations much less
     assert float(arap_loss(more, means, pairs, w, 0.1, 0.001)) < 0.5 * l2
+
+
+def test_touch_lets_a_part_slide_along_its_contact_but_not_leave_it(key):
+    """A slider resting on a densely sampled plate: sliding 2 cm along the plate keeps the
+    as-touching term near zero while pair-distance ARAP grows by orders of magnitude; lifting
+    the slider off the plate raises both; the gradient matches central finite differences."""
+    from rsrd_jax.track._dpm import touch_candidates
+
+    g = np.linspace(-0.05, 0.05, 101)  # 1 mm plate grid (part 0, z = 0)
+    plate = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    plate = np.concatenate([plate, np.zeros((len(plate), 1))], 1)
+    slider = np.asarray(jax.random.uniform(key, (60, 3))) * [0.01, 0.01, 0.01] + [0.0, 0.0, 0.001]
+    means = np.concatenate([plate, slider])
+    ids = np.concatenate([np.zeros(len(plate), int), np.ones(len(slider), int)])
+    from scipy.spatial import cKDTree
+
+    pairs = np.array(sorted(cKDTree(means).query_pairs(0.0025)), np.int64)
+    pairs = pairs[ids[pairs[:, 0]] != ids[pairs[:, 1]]]
+    assert len(pairs) > 10
+    pw = np.ones(len(pairs))
+    pts, cand, rest, w, dirs, upairs = (jnp.asarray(x) for x in touch_candidates(means, ids, pairs, pw, k=4000))
+
+    def both(m):
+        m = jnp.asarray(m, jnp.float32)
+        return (float(touch_loss(m, pts, cand, rest, w, dirs, upairs, 1.0, 0.001)),
+                float(arap_loss(m, jnp.asarray(means, jnp.float32), jnp.asarray(pairs), jnp.asarray(pw), 1.0, 0.001)))  # fmt: skip
+
+    assert both(means)[0] == pytest.approx(0.0, abs=1e-4)
+    slid = means.copy()
+    slid[ids == 1] += [0.02, 0.0, 0.0]
+    t_slide, a_slide = both(slid)
+    lifted = means.copy()
+    lifted[ids == 1] += [0.0, 0.0, 0.01]
+    t_lift, a_lift = both(lifted)
+    assert t_slide < 0.5 and a_slide > 10.0, (t_slide, a_slide)
+    assert t_lift > 5.0 and a_lift > 5.0, (t_lift, a_lift)
+    # gradient w.r.t. a lift of the slider against finite differences (float64 host evaluation)
+    f = lambda h: touch_loss(jnp.asarray(means, jnp.float32).at[len(plate):, 2].add(h), pts, cand, rest, w, dirs, upairs, 1.0, 0.001)  # noqa: E731
+    gj = float(jax.grad(f)(jnp.float32(0.004)))
+    eps = 1e-4
+    fd = (float(f(jnp.float32(0.004 + eps))) - float(f(jnp.float32(0.004 - eps)))) / (2 * eps)
+    assert gj == pytest.approx(fd, rel=0.05)
 
 
 def test_depth_ranking_zero_when_orders_agree(key):

@@ -19,6 +19,7 @@ from ._eval import add_metrics as add_metrics, kabsch as kabsch
 from ._init import initialize_pose as initialize_pose, seed_rotations as seed_rotations
 from ._losses import (
     arap_loss as arap_loss,
+    touch_loss as touch_loss,
     barron_loss as barron_loss,
     depth_ranking_loss as depth_ranking_loss,
     feature_loss as feature_loss,

@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -41,6 +41,17 @@ class TrackModel(eqx.Module):
     diagonal optimiser like Adam follows badly), zero (the centroid) otherwise."""
     arap_pairs: Int[Array, "m 2"]
     arap_weight: Float[Array, " m"]
+    touch_points: Int[Array, " e"]
+    """Contact Gaussians (both ends of every ARAP pair) of the as-touching term."""
+    touch_candidates: Int[Array, "e k"]
+    """For each contact Gaussian, the K nearest Gaussians of the *other* part at rest."""
+    touch_rest: Float[Array, " e"]
+    """Rest distance of each contact Gaussian to its nearest candidate."""
+    touch_weight: Float[Array, " e"]
+    touch_direction: Int[Array, " e"]
+    """Ordered part pair (q → r) of each contact Gaussian."""
+    touch_pairs: Int[Array, "u 2"]
+    """The two directions of each touching part pair (the term takes the smaller of the two)."""
     num_features: int = eqx.field(static=True)
     num_parts: int = eqx.field(static=True)
 
@@ -78,6 +89,7 @@ class TrackModel(eqx.Module):
             pairs_w = np.ones(len(pairs), np.float32)
         P = int(model.num_parts)
         sub = jax.tree_util.tree_map(lambda x: x[keep], g)
+        touch = touch_candidates(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w)
         pivots = contact_pivots(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w, np.asarray(model.part_centroids), P)
         onehot = jax.nn.one_hot(sub.part_ids, P, dtype=sub.features.dtype)
         sub = eqx.tree_at(lambda x: x.features, sub, jnp.concatenate([sub.features, onehot], axis=-1))
@@ -88,9 +100,54 @@ class TrackModel(eqx.Module):
             part_pivots=jnp.asarray(pivots, jnp.float32),
             arap_pairs=jnp.asarray(pairs, jnp.int32),
             arap_weight=jnp.asarray(pairs_w),
+            touch_points=jnp.asarray(touch[0], jnp.int32),
+            touch_candidates=jnp.asarray(touch[1], jnp.int32),
+            touch_rest=jnp.asarray(touch[2], jnp.float32),
+            touch_weight=jnp.asarray(touch[3], jnp.float32),
+            touch_direction=jnp.asarray(touch[4], jnp.int32),
+            touch_pairs=jnp.asarray(touch[5], jnp.int32),
             num_features=int(g.num_features),
             num_parts=P,
         )
+
+
+TOUCH_CANDIDATES = 1024
+"""K: candidates (nearest Gaussians of the other part at rest) per contact Gaussian of the
+as-touching term; they cover the region a contact can slide into (≈ 4–6 cm on studio objects)."""
+
+
+def touch_candidates(means, part_ids, pairs, pair_w, k: int = TOUCH_CANDIDATES):
+    """Host-side set-up of the as-touching term. For every ordered part pair (q, r) that has
+    weighted ARAP pairs, q's contact Gaussians (its ends of those pairs), their K nearest
+    Gaussians of part r at rest, and the rest distance to the nearest one.
+
+    Returns (points (e,), candidates (e, k), rest (e,), weight (e,), direction (e,) index of the
+    ordered pair (q, r), directions (u, 2): the two direction indices of each unordered part pair
+    (−1 if a direction has no entries)). One zero-weight dummy entry when there are no pairs."""
+    from scipy.spatial import cKDTree
+
+    sel = pairs[pair_w > 0] if len(pairs) else pairs
+    pts, cands, rest, dirs = [], [], [], []
+    order: dict[tuple[int, int], int] = {}
+    for q, r in sorted({(int(part_ids[i]), int(part_ids[j])) for i, j in sel} | {(int(part_ids[j]), int(part_ids[i])) for i, j in sel}):
+        mine = np.unique(np.concatenate([sel[(part_ids[sel[:, 0]] == q) & (part_ids[sel[:, 1]] == r), 0],
+                                         sel[(part_ids[sel[:, 1]] == q) & (part_ids[sel[:, 0]] == r), 1]]))  # fmt: skip
+        other = np.flatnonzero(part_ids == r)
+        kk = min(k, len(other))
+        d, j = cKDTree(means[other]).query(means[mine], k=kk)
+        d, j = np.asarray(d).reshape(len(mine), kk), np.asarray(j).reshape(len(mine), kk)
+        order[(q, r)] = len(order)
+        pts.append(mine)
+        cands.append(np.pad(other[j], ((0, 0), (0, k - kk)), mode="edge"))
+        rest.append(d[:, 0])
+        dirs.append(np.full(len(mine), order[(q, r)]))
+    if not pts:
+        z = np.zeros(1, np.int64)
+        return z, np.zeros((1, k), np.int64), np.zeros(1), np.zeros(1), z, -np.ones((1, 2), np.int64)
+    unordered = sorted({tuple(sorted(x)) for x in order})
+    pair_dirs = np.array([[order.get((q, r), -1), order.get((r, q), -1)] for q, r in unordered], np.int64)
+    p = np.concatenate(pts)
+    return p, np.concatenate(cands), np.concatenate(rest), np.ones(len(p)), np.concatenate(dirs), pair_dirs
 
 
 def contact_pivots(means, part_ids, pairs, pair_w, centroids, P: int) -> np.ndarray:
@@ -167,6 +224,7 @@ class Weights(eqx.Module):
     feature: Float[Array, ""]
     depth_rank: Float[Array, ""]
     arap: Float[Array, ""]
+    touch: Float[Array, ""]
     rgb: Float[Array, ""]
     arap_alpha: Float[Array, ""]
     arap_scale: Float[Array, ""]
@@ -181,7 +239,7 @@ class Weights(eqx.Module):
         w = cfg.weights
         ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
         scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
-        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale)
+        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale)
 
 
 def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
@@ -211,13 +269,15 @@ def frame_objective(
     pair_w = (m.sum() > 1).astype(jnp.float32) * jnp.ones(num_pairs)
     l_rank = depth_ranking_loss(r.depth.reshape(-1), obs.mono.reshape(-1), idx, pair_w)
     l_arap = arap_loss(r.means, tm.gaussians.means, tm.arap_pairs, tm.arap_weight, w.arap_alpha, w.arap_scale)
-    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * l_arap
+    l_touch = touch_loss(r.means, tm.touch_points, tm.touch_candidates, tm.touch_rest, tm.touch_weight,
+                         tm.touch_direction, tm.touch_pairs, w.arap_alpha, w.arap_scale)  # fmt: skip
+    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * l_arap + w.touch * l_touch
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
 
 
