@@ -144,8 +144,6 @@ def test_track_recovers_a_known_rigid_motion(studio):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 5): box 2.4 mm but the lid ends 24.7 mm off (not "
-                   "following costs > 15 mm); strict: remove the marker when it passes")
 def test_track_recovers_a_known_hinge_motion(tmp_path):
     """The red box's lid closes about its hinge (studio ground truth, 1.1 rad over 12 frames)."""
     root = tmp_path / "red_box"
@@ -162,6 +160,7 @@ def test_track_recovers_a_known_hinge_motion(tmp_path):
     lid_still = add_metrics(np.repeat(T_cwp[:1, 1:], len(T_cwp), 0), T_cwp[:, 1:], [np.asarray(model.gaussians.means)[np.asarray(model.gaussians.part_ids) == 1]])
     assert lid_still["mean_add_obj_mm"] > 15.0
     assert max(m["add_obj_mm"]) < 2 * RIGID_TOL_MM, m["add_obj_mm"]
+    print("hinge ADD per part (mm):", m["add_obj_mm"], "lid still:", lid_still["mean_add_obj_mm"])
 
 
 @pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 5): at this tiny size the seed losses differ by < 8 % "
