@@ -368,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.set_defaults(func=cmd_studio)
 
     dm = sub.add_parser("demo", help="run the whole pipeline end to end on an embedded studio object")
-    dm.add_argument("--object", default="red_box", help="studio object")
+    dm.add_argument("--object", default="stapler", help="studio object")
     dm.add_argument("--out", default="demo_out", help="output directory")
     dm.add_argument("--seed", type=int, default=0, help="studio seed")
     dm.add_argument("--frames", type=int, default=30, help="demo video frames")
