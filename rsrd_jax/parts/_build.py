@@ -12,7 +12,7 @@ import jaxlie
 import numpy as np
 
 from ..features import EfficientNetConfig, EfficientNetExtractor, FeatureExtractor, fit_pca, mask_to_grid
-from ..geometry import Camera, box_intrinsics, crop, roi_box
+from ..geometry import Camera, box_intrinsics, crop, project_points, roi_box
 from ..io import ArtefactError, read_capture
 from ..splat import render
 from ..splat._fit import (
@@ -300,14 +300,10 @@ def _object_crops(g, intr, T, images, obj_mask, size: int, margin: float):
     `size`: (crops V×size×size×3, crop masks V×size×size, boxes)."""
     import cv2
 
-    means = np.asarray(g.means, np.float64)
-    K = np.array([[float(intr.fx), 0, float(intr.cx)], [0, float(intr.fy), float(intr.cy)], [0, 0, 1]])
     crops, cmasks, boxes = [], [], []
     for v in range(len(T)):
-        pc = means @ T[v][:3, :3].T + T[v][:3, 3]
-        front = pc[:, 2] > 1e-3
-        uv = (pc[front] @ K.T)[:, :2] / pc[front, 2:3]
-        box = roi_box(uv, intr.width, intr.height, margin)
+        uv, z = project_points(intr, jaxlie.SE3.from_matrix(jnp.asarray(T[v], jnp.float32)) @ g.means)
+        box = roi_box(np.asarray(uv)[np.asarray(z) > 1e-3], intr.width, intr.height, margin)
         boxes.append(box)
         crops.append(crop(images[v], box, size))
         cmasks.append(crop(obj_mask[v].astype(np.float32), box, size, cv2.INTER_AREA) > 0.5)

@@ -167,6 +167,7 @@ def fit_feature_field(
     Ts = jaxlie.SE3.from_matrix(jnp.asarray(T_cam_world, jnp.float32))
     tj, vj = jnp.asarray(targets, jnp.float32), jnp.asarray(valid)
     cfg_arr = jnp.asarray([config.alpha_threshold, config.smooth_weight], jnp.float32)
+    kvecs = _stack_intrinsics(gis)
     hist = []
     done = 0
     bar = None
@@ -178,7 +179,7 @@ def fit_feature_field(
         nb = min(200, config.iterations - done)
         views = jnp.asarray(rng.integers(0, V, nb), jnp.int32)
         feats, decoder, opt_state, mse = _field_block(
-            feats, decoder, opt_state, views, g, tj, vj, Ts, _stack_intrinsics(gis), rcfg, knn_idx, optimizer, cfg_arr
+            feats, decoder, opt_state, views, g, tj, vj, Ts, kvecs, rcfg, knn_idx, optimizer, cfg_arr
         )
         done += nb
         hist.append({"iteration": done, "mse": float(mse)})

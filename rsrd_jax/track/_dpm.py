@@ -56,10 +56,12 @@ class TrackModel(eqx.Module):
     num_parts: int = eqx.field(static=True)
 
     @staticmethod
-    def from_object_model(model, max_gaussians: int, seed: int = 0, voxel_m: float | None = None) -> TrackModel:
+    def from_object_model(model, max_gaussians: int, seed: int = 0, voxel_m: float | None = None,
+                          touch: bool = False) -> TrackModel:  # fmt: skip
         """Host-side: optionally merge Gaussians per part on a `voxel_m` grid (level of detail for
         the tracker's render resolution), subsample to `max_gaussians` (keeping ARAP pairs whose
-        ends survive), append one-hot part channels to the features."""
+        ends survive), append one-hot part channels to the features. `touch`: set up the
+        as-touching term's candidates (otherwise one zero-weight dummy entry, no cost per step)."""
         g = model.gaussians
         rng = np.random.default_rng(seed)
         pairs = np.asarray(model.arap_pairs, np.int64).reshape(-1, 2)
@@ -89,7 +91,7 @@ class TrackModel(eqx.Module):
             pairs_w = np.ones(len(pairs), np.float32)
         P = int(model.num_parts)
         sub = jax.tree_util.tree_map(lambda x: x[keep], g)
-        touch = touch_candidates(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w)
+        touch = touch_candidates(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w if touch else 0 * pairs_w)
         pivots = contact_pivots(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w, np.asarray(model.part_centroids), P)
         onehot = jax.nn.one_hot(sub.part_ids, P, dtype=sub.features.dtype)
         sub = eqx.tree_at(lambda x: x.features, sub, jnp.concatenate([sub.features, onehot], axis=-1))

@@ -79,7 +79,7 @@ def track_video(
         mp = np.asarray(model.gaussians.means)
         r = float(np.percentile(np.linalg.norm(mp - mp.mean(0), axis=1), 90))
         voxel = config.lod_cells * 2 * r * (1 + 2 * config.roi_margin) / obsr.grid_size
-    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel)
+    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel, touch=config.weights.touch > 0)
     if not config.contact_pivots:
         tm = eqx.tree_at(lambda m: m.part_pivots, tm, jnp.zeros_like(tm.part_pivots))
     rest = rest_part_poses(tm.part_centroids)
