@@ -278,7 +278,7 @@ def build_object_model(
 
 
 def _render_depths(g, intr, T) -> np.ndarray:
-    rcfg = size_render_config(g, intr, T[: min(len(T), 6)], 8, 256)
+    rcfg = size_render_config(g, intr, T[: min(len(T), 6)], 8)
     out = []
     for Tv in T:
         cam = Camera(intr, jaxlie.SE3.from_matrix(jnp.asarray(Tv, jnp.float32)))
@@ -313,7 +313,7 @@ def _object_crops(g, intr, T, images, obj_mask, size: int, margin: float):
 def _heldout_metrics(g, decoder, intr, T, images, masks, targets, grid_valid, view_K=None) -> dict:
     """PSNR/SSIM (object on black where masks exist; all pixels and object pixels only) and
     decoded-feature cosine similarity on object grid cells of held-out views."""
-    rcfg = size_render_config(g, intr, T, 8, 256)
+    rcfg = size_render_config(g, intr, T, 8)
     ps, ps_obj, ss = [], [], []
     for v in range(len(T)):
         cam = Camera(intr, jaxlie.SE3.from_matrix(jnp.asarray(T[v], jnp.float32)))

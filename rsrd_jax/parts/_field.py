@@ -72,7 +72,7 @@ def _view_intrinsics(kvec: jax.Array, grid_hw: tuple[int, int]) -> Intrinsics:
 
 def _fit_render_config(gaussians: Gaussians, view_intrinsics, T_cam_world: np.ndarray):
     """One render budget covering every given view (each may have its own intrinsics)."""
-    cfgs = [size_render_config(gaussians, k, np.asarray(T)[None], GRID_TILE_SIZE, 256)
+    cfgs = [size_render_config(gaussians, k, np.asarray(T)[None], GRID_TILE_SIZE)
             for k, T in zip(view_intrinsics, T_cam_world)]  # fmt: skip
     return dataclasses.replace(cfgs[0], max_chunks=max(c.max_chunks for c in cfgs),
                                max_pairs=max(c.max_pairs for c in cfgs))  # fmt: skip

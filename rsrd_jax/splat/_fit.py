@@ -16,6 +16,7 @@ Gaussians at the end.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -78,8 +79,12 @@ class FitConfig(eqx.Module):
     """Gaussians with a standard deviation above this fraction of the extent are pruned."""
     tile_size: int = 8
     """Rasterizer tile side in pixels."""
-    tile_capacity: int = 256
-    """Rasterizer K (nearest Gaussians kept per tile) during the fit."""
+    tile_capacity: int | None = None
+    """Rasterizer K (nearest Gaussians kept per tile) during the fit; None: every Gaussian that
+    touches a tile (K from the per-tile counts, re-sized after each densification). A fixed K
+    below the counts drops the far Gaussians of crowded tiles: frog's 11k Gaussians reach 1460 per
+    8-px tile, and a fit at K = 256 scored 27.1 dB held-out PSNR (object pixels) where the same
+    Gaussians rendered untruncated score 28.4."""
     seed: int = 0
     """Seed for view order, backgrounds and splits."""
 
@@ -291,20 +296,22 @@ _bin_stats = jax.jit(project_gaussians)
 
 
 def size_render_config(
-    gaussians: Gaussians, intrinsics: Intrinsics, T_cam_world: np.ndarray, tile_size: int, capacity: int
+    gaussians: Gaussians, intrinsics: Intrinsics, T_cam_world: np.ndarray, tile_size: int, capacity: int | None = None
 ) -> RenderConfig:
-    """Budgets (pairs, chunks) for rendering `gaussians` from these views during a fit, with
-    headroom and rounded up to powers of two so a growing model recompiles rarely."""
+    """Budgets (K, pairs, chunks) for rendering `gaussians` from these views during a fit, with
+    headroom and rounded up to powers of two so a growing model recompiles rarely. `capacity`
+    None: K covers the most crowded tile (nothing truncated)."""
     B = 32
-    need_pairs, need_chunks = 1, 1
-    probe = RenderConfig(tile_size, B, capacity, 1, 1 << 22)
+    probe = RenderConfig(tile_size, B, 1 << 30, 1, 1 << 22)
+    all_counts, need_pairs = [], 1
     for T in T_cam_world:
         cam = Camera(intrinsics, jaxlie.SE3.from_matrix(jnp.asarray(T, jnp.float32)))
-        proj = _bin_stats(gaussians, cam)
-        bins = _bin_probe(proj, cam, probe)
-        counts = np.asarray(bins.counts)
+        bins = _bin_probe(_bin_stats(gaussians, cam), cam, probe)
+        all_counts.append(np.asarray(bins.counts))
         need_pairs = max(need_pairs, int(bins.total_pairs))
-        need_chunks = max(need_chunks, int(np.sum(-(-np.minimum(counts, capacity) // B))))
+    if capacity is None:
+        capacity = _round_pow2(1.25 * max(int(c.max()) for c in all_counts), 256)
+    need_chunks = max(1, *(int(np.sum(-(-np.minimum(c, capacity) // B))) for c in all_counts))
     return RenderConfig(
         tile_size=tile_size,
         chunk_size=B,
@@ -575,8 +582,11 @@ def fit_gaussians(
             grad_acc[:] = 0
             grad_cnt[:] = 0
             new_cfg = size_render_config(_to_gaussians(params), intrinsics, T_cam_world[sample], config.tile_size, config.tile_capacity)
-            if new_cfg.max_pairs > rcfg.max_pairs or new_cfg.max_chunks > rcfg.max_chunks:
-                rcfg = new_cfg
+            if (new_cfg.max_pairs > rcfg.max_pairs or new_cfg.max_chunks > rcfg.max_chunks
+                    or new_cfg.capacity > rcfg.capacity):  # fmt: skip
+                rcfg = dataclasses.replace(new_cfg, max_pairs=max(new_cfg.max_pairs, rcfg.max_pairs),
+                                           max_chunks=max(new_cfg.max_chunks, rcfg.max_chunks),
+                                           capacity=max(new_cfg.capacity, rcfg.capacity))  # fmt: skip
     if bar is not None:
         bar.close()
     # final prune (no densification) and crop

@@ -169,11 +169,10 @@ def make_scan(obj: StudioObject, out: Path, cfg: StudioConfig, T_world_root: np.
             noise = np.concatenate([rng.normal(0, cfg.pose_noise_m, 3), rng.normal(0, np.deg2rad(cfg.pose_noise_deg), 3)])
             T_noisy.append(np.asarray(jaxlie.SE3.exp(noise.astype(np.float32)).as_matrix(), np.float64) @ T)
         T_wp = scene.part_poses()
-        pts_part, ids = [], []
-        for k, b in enumerate(scene.body_ids):
-            p = part_surface_points(scene.model, b, 1500, cfg.seed + k)
-            pts_part.append(p)
-            ids.append(np.full(len(p), k, np.int32))
+        # ground-truth surface samples: only the visible hull (a leg's capsule end buried in the
+        # body would otherwise claim the body's surface next to it for the leg)
+        pts_part = scene.exterior_part_points(1500, cfg.seed)
+        ids = [np.full(len(p), k, np.int32) for k, p in enumerate(pts_part)]
     write_transforms(
         out, K, np.stack(T_noisy), files,
         extra={"studio_object": obj.name, "applied_transform": np.eye(4)[:3].tolist(), "units": "metres"},

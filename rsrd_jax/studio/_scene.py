@@ -187,6 +187,17 @@ class StudioScene:
             out[k, 3, 3] = 1.0
         return out
 
+    def exterior_part_points(self, n: int, seed: int) -> list[np.ndarray]:
+        """≈n surface samples per part (part frame, `part_surface_points`) minus those buried inside
+        another geom of the object at the current configuration."""
+        T = self.part_poses()
+        out = []
+        for k, b in enumerate(self.body_ids):
+            p = part_surface_points(self.model, b, n, seed + k)
+            world = p @ T[k, :3, :3].T + T[k, :3, 3]
+            out.append(p[~buried_points(self.model, self.data, world, self.body_ids)])
+        return out
+
     def hand_pose(self, i: int) -> np.ndarray:
         """`T_world_hand` of hand i (x pinch axis, z approach) from its contact on the posed part."""
         c = self.obj.contacts[i]
@@ -311,6 +322,32 @@ def part_surface_points(model: mujoco.MjModel, body_id: int, n: int, seed: int) 
         mujoco.mju_quat2Mat(R, model.geom_quat[g])
         pts.append(sampler(m) @ R.reshape(3, 3).T + model.geom_pos[g])
     return np.concatenate(pts).astype(np.float32)
+
+
+def buried_points(model: mujoco.MjModel, data: mujoco.MjData, points: np.ndarray, bodies: list[int],
+                  margin: float = 2e-4) -> np.ndarray:
+    """Which world points lie inside a primitive geom (box, sphere, ellipsoid, capsule, cylinder)
+    of `bodies` by more than `margin` metres, at `data`'s current kinematics: surface samples that
+    are buried in another geom (a leg's capsule end inside the body) and no camera can see."""
+    out = np.zeros(len(points), bool)
+    for g in range(model.ngeom):
+        if int(model.geom_bodyid[g]) not in bodies:
+            continue
+        t, s = model.geom_type[g], model.geom_size[g]
+        q = (points - data.geom_xpos[g]) @ data.geom_xmat[g].reshape(3, 3)
+        if t == mujoco.mjtGeom.mjGEOM_BOX:
+            out |= np.all(np.abs(q) < s - margin, axis=1)
+        elif t == mujoco.mjtGeom.mjGEOM_SPHERE:
+            out |= np.linalg.norm(q, axis=1) < s[0] - margin
+        elif t == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+            out |= np.sum((q / (s[:3] - margin)) ** 2, axis=1) < 1.0
+        elif t == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            axis = np.zeros_like(q)
+            axis[:, 2] = np.clip(q[:, 2], -s[1], s[1])
+            out |= np.linalg.norm(q - axis, axis=1) < s[0] - margin
+        elif t == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            out |= (np.linalg.norm(q[:, :2], axis=1) < s[0] - margin) & (np.abs(q[:, 2]) < s[1] - margin)
+    return out
 
 
 def _unit_sphere(rng: np.random.Generator, m: int) -> np.ndarray:
