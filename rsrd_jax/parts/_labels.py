@@ -78,35 +78,68 @@ def knn_cleanup(means: np.ndarray, labels: np.ndarray, known: np.ndarray, k: int
 
 
 def auto_group(means: np.ndarray, features: np.ndarray, scale: float = 1.0, feature_weight: float = 1.0,
-               max_points: int = 3000, seed: int = 0) -> np.ndarray:
-    """Automatic part grouping without masks (GARField-like, one `scale` knob).
+               max_points: int = 3000, max_parts: int = 8, knn: int = 20, seed: int = 0) -> np.ndarray:
+    """Automatic part grouping without masks: spectral clustering of the Gaussians' kNN graph.
 
-    Positions are divided by the object's RMS radius, features (decoded PCA vectors) by their RMS
-    norm and multiplied by `feature_weight`; HDBSCAN runs on a random subset with
-    `cluster_selection_epsilon = 0.25·scale` (larger scale → fewer, bigger groups) and
-    `min_cluster_size` 3 % of the subset; noise and the rest go to the nearest clustered point.
-    Labels are ordered by size, largest first.
+    Parts of an articulated object meet at narrow or creased junctions (a leg's root, a lid's
+    seam), which a normalised cut of the surface's neighbour graph finds; edges are weighted by
+    decoded-feature similarity, exp(−feature_weight·‖f_i − f_j‖² / median), so an appearance
+    boundary also weakens them. The number of parts k is chosen by the eigengap of the normalised
+    Laplacian: the gaps λ_k / λ_{k−1} (k = 2…max_parts) are compared with a threshold
+    1 + (largest gap − 1) / `scale`, and the smallest k that reaches it wins: scale 1 takes the
+    largest gap; larger scales accept weaker gaps earlier (fewer, bigger parts), smaller ones only
+    the largest (scale < 1 behaves as 1). One part when no gap exceeds 1.5. Runs on a random
+    subset of `max_points`; the rest take their nearest subset point's label. Labels are ordered by
+    size, largest first.
+
+    Measured on studio builds (48 views): red_box → 2 parts, frog → 6 (see issue 4's note).
     """
-    from sklearn.cluster import HDBSCAN
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, laplacian
+    from scipy.sparse.linalg import eigsh
+    from sklearn.cluster import KMeans
 
     rng = np.random.default_rng(seed)
-    c = means - means.mean(0)
-    r = np.sqrt(np.mean(np.sum(c**2, 1))) + 1e-12
-    f = features / (np.sqrt(np.mean(np.sum(features**2, 1))) + 1e-12)
-    X = np.concatenate([c / r, feature_weight * f], 1)
-    idx = rng.choice(len(X), min(len(X), max_points), replace=False)
-    hd = HDBSCAN(min_cluster_size=max(5, int(0.03 * len(idx))), cluster_selection_epsilon=0.25 * scale,
-                 allow_single_cluster=True, copy=True)  # fmt: skip
-    lab = hd.fit_predict(X[idx])
-    if (lab < 0).all():
-        return np.zeros(len(means), np.int64)
-    good = lab >= 0
-    _, j = cKDTree(X[idx][good]).query(X, k=1)
-    full = lab[good][j]
+    n = len(means)
+    idx = rng.choice(n, min(n, max_points), replace=False)
+    x = np.asarray(means, np.float64)[idx]
+    f = np.asarray(features, np.float64)[idx]
+    m = len(x)
+    if m < 3 * max_parts:
+        return np.zeros(n, np.int64)
+    kk = min(knn, m - 1)
+    _, nb = cKDTree(x).query(x, k=kk + 1)
+    rows = np.repeat(np.arange(m), kk)
+    cols = nb[:, 1:].reshape(-1)
+    df = np.sum((f[rows] - f[cols]) ** 2, axis=1)
+    w = np.exp(-feature_weight * df / max(float(np.median(df)), 1e-12))
+    A = coo_matrix((w, (rows, cols)), shape=(m, m)).tocsr()
+    A = 0.5 * (A + A.T)
+    _, comp = connected_components(A, directed=False)
+    size = np.bincount(comp)
+    keep = size[comp] >= max(3, 0.01 * m)  # separate pieces stay (each is a zero eigenvalue), specks go
+    if not keep.all():  # specks take their nearest kept point's label below
+        x, A = x[keep], A[keep][:, keep]
+        m = len(x)
+    L = laplacian(A, normed=True)
+    nev = min(max_parts + 1, m - 1)
+    vals, vecs = eigsh(L, k=nev, sigma=-1e-3, which="LM")
+    order = np.argsort(vals)
+    vals, vecs = np.maximum(vals[order], 0.0), vecs[:, order]
+    gaps = vals[2:] / np.maximum(vals[1:-1], 1e-12)  # gaps[j] = λ_{j+2} / λ_{j+1}: k = j + 2 parts
+    if len(gaps) == 0 or gaps.max() < 1.5:
+        return np.zeros(n, np.int64)
+    thr = 1.0 + (gaps.max() - 1.0) / max(scale, 1.0)
+    k = int(np.nonzero(gaps >= thr - 1e-12)[0][0]) + 2
+    U = vecs[:, :k]
+    U = U / np.maximum(np.linalg.norm(U, axis=1, keepdims=True), 1e-12)
+    lab = KMeans(k, n_init=10, random_state=seed).fit_predict(U)
+    _, j = cKDTree(x).query(np.asarray(means, np.float64), k=1)
+    full = lab[j]
     uniq, counts = np.unique(full, return_counts=True)
-    order = uniq[np.argsort(-counts, kind="stable")]
-    remap = {int(o): i for i, o in enumerate(order)}
-    return np.asarray([remap[int(x)] for x in full], np.int64)
+    remap = np.zeros(int(uniq.max()) + 1, np.int64)
+    remap[uniq[np.argsort(-counts, kind="stable")]] = np.arange(len(uniq))
+    return remap[full]
 
 
 def part_centroids(means: np.ndarray, labels: np.ndarray, num_parts: int) -> np.ndarray:
