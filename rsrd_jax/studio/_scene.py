@@ -12,7 +12,7 @@ import jaxlie
 import mujoco
 import numpy as np
 
-from ._spec import StudioObject, object_mjcf, part_texture, png_bytes
+from ._spec import StudioObject, object_mjcf, png_bytes
 
 FINGER_RADIUS = 0.008
 """Radius of the proxy hand's finger capsules, metres."""
