@@ -155,3 +155,85 @@ def test_onnx_depth_anything_inverts_disparity(tmp_path):
     assert d[:, 2].mean() > d[:, -3].mean()
     with pytest.raises(Exception, match="not found"):
         OnnxDepthAnything(tmp_path / "missing.onnx")
+
+
+# --------------------------------------------------------------------------------------------
+# Joint discovery (TrackConfig.joints)
+# --------------------------------------------------------------------------------------------
+
+
+def _hinge_trajectory(X, axis, angles, centroids, drift):
+    """Part 0 (base) moves by `drift` (rigid), part 1 turns about the line (X, axis) relative to it."""
+    out = []
+    for a, d in zip(angles, drift):
+        base = jaxlie.SE3.exp(jnp.asarray(d, jnp.float32))
+        hinge = jaxlie.SE3.from_translation(jnp.asarray(X)) @ jaxlie.SE3.from_rotation(
+            jaxlie.SO3.exp(jnp.asarray(axis * a, jnp.float32))) @ jaxlie.SE3.from_translation(-jnp.asarray(X))
+        T0 = base @ jaxlie.SE3.from_translation(jnp.asarray(centroids[0], jnp.float32))
+        T1 = base @ hinge @ jaxlie.SE3.from_translation(jnp.asarray(centroids[1], jnp.float32))
+        out.append(np.stack([np.asarray(T0.wxyz_xyz), np.asarray(T1.wxyz_xyz)]))
+    return np.stack(out)
+
+
+def test_fit_joint_point_recovers_a_hinge_axis_and_refuses_a_slide():
+    from rsrd_jax.track._joints import fit_joint_point
+
+    rng = np.random.default_rng(0)
+    cents = np.array([[0.0, 0.0, 0.02], [0.05, 0.01, 0.06]])
+    X = np.array([-0.04, 0.0, 0.05])
+    axis = np.array([0.0, 1.0, 0.0])
+    F = 20
+    angles = np.linspace(0, np.deg2rad(40), F)
+    drift = np.concatenate([rng.normal(0, 0.003, (F, 3)), rng.normal(0, 0.02, (F, 3))], 1)
+    T = _hinge_trajectory(X, axis, angles, cents, drift)
+    x0 = np.array([0.0, 0.02, 0.05])  # initial guess 4 cm off, 2 cm along the axis
+    got = fit_joint_point(T, cents, 1, 0, x0, 5.0)
+    off_axis = np.linalg.norm(np.cross(got - X, axis))
+    assert off_axis < 5e-4, off_axis  # on the hinge axis (the pull towards x0 biases it by ≈ 0.3 mm)
+    assert abs((got - X) @ axis - (x0 - X) @ axis) < 2e-3  # along it: pulled to the guess
+    # a slide (no rotation relative to the base) has no joint point
+    slide = T.copy()
+    slide[:, 1, :4] = slide[:, 0, :4]
+    slide[:, 1, 4:] = slide[:, 0, 4:] + np.linspace(0, 0.03, F)[:, None] * np.array([1.0, 0, 0])
+    assert fit_joint_point(slide, cents, 1, 0, x0, 5.0) is None
+
+
+def test_contact_band_pairs_match_brute_force_and_joint_slots_are_invisible(rng):
+    import equinox as eqx
+
+    from rsrd_jax.geometry import Camera, Intrinsics, look_at
+    from rsrd_jax.splat import Gaussians, render
+    from rsrd_jax.splat._raster import choose_config
+    from rsrd_jax.track._joints import JOINT_OPACITY_LOGIT, contact_band_pairs, with_joint_slots
+
+    a = rng.uniform([0, 0, 0], [0.04, 0.03, 0.01], (300, 3))
+    b = rng.uniform([0, 0, 0.0115], [0.04, 0.03, 0.02], (200, 3))
+    means = np.concatenate([a, b])
+    lab = np.r_[np.zeros(300, int), np.ones(200, int)]
+    r = 0.002
+    got = {tuple(p) for p in contact_band_pairs(means, lab, r, 0.01).tolist()}
+    d = np.linalg.norm(means[:300, None] - means[None, 300:], axis=-1)
+    dmin = d.min()
+    want = {(i, 300 + int(np.argmin(d[i]))) for i in range(300) if d[i].min() <= dmin + r}
+    assert got == want and len(want) > 5
+    assert contact_band_pairs(means + np.r_[np.zeros((300, 3)), np.tile([0, 0, 0.05], (200, 1))], lab, r, 0.01).shape == (0, 2)
+    n = len(means)
+    g = Gaussians.create(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.002)), np.full(n, 1.0),
+                         rng.uniform(0, 1, (n, 3)), features=rng.normal(size=(n, 4)), part_ids=lab)  # fmt: skip
+    class _Model(eqx.Module):  # the fields `with_joint_slots` reads of an ObjectModel
+        gaussians: Gaussians
+        arap_pairs: jax.Array
+        part_centroids: jax.Array
+        num_parts: int = eqx.field(static=True)
+
+    model = _Model(g, jnp.zeros((0, 2), jnp.int32), jnp.asarray([a.mean(0), b.mean(0)], jnp.float32), 2)
+    jm, nb = with_joint_slots(model, r, 0.01)
+    assert nb == {1: 0}  # the smaller part gets the joint slot, paired with the part it touches
+    assert jm.gaussians.num_gaussians == n + 2 and np.asarray(jm.arap_pairs).shape[0] == len(want) + 1
+    slot = np.asarray(jm.gaussians.means)[n:]
+    np.testing.assert_allclose(slot[0], slot[1])  # coincident: the ARAP pair's rest length is 0
+    assert np.all(np.asarray(jm.gaussians.opacity_logits)[n:] == JOINT_OPACITY_LOGIT)
+    assert list(np.asarray(jm.arap_pairs)[-1]) == [n, n + 1]
+    cam = Camera(Intrinsics.create(80.0, 80.0, 24.0, 24.0, 48, 48), look_at(np.array([0.02, -0.08, 0.06]), np.array([0.02, 0.015, 0.01])))
+    cfg = choose_config(jm.gaussians, cam)
+    np.testing.assert_allclose(np.asarray(render(jm.gaussians, cam, cfg).rgb), np.asarray(render(g, cam, cfg).rgb), atol=1e-6)

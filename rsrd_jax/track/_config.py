@@ -52,6 +52,17 @@ class TrackConfig(eqx.Module):
     Measured on the studio red box (30 frames, lid closing 97° at up to 7°/frame, feature field
     fitted on object crops): object-frame ADD box/lid 3.8/7.8 mm with, 3.0/34.7 mm without (the
     lid falls behind and loses its basin); 2.5/3.9 mm with smoothing and estimated initial pose."""
+    joints: bool = False
+    """Joint discovery (not for separable objects): a first per-frame pass with ARAP on the parts'
+    whole contact band at weight `joint_first_arap` with a saturating loss (α = −2), a fit of each
+    part's joint point from that pass's motion (parts that turn by `joint_min_angle_deg` relative
+    to their neighbour), then the per-frame pass again with those parts tied only at their joint
+    points (and pivoting about them), then smoothing. Twice the per-frame time. See
+    `track._joints`."""
+    joint_first_arap: float = 0.005
+    """ARAP weight of the first pass (the second uses `weights.arap`)."""
+    joint_min_angle_deg: float = 5.0
+    """Smallest rotation relative to the neighbour part for which a joint point is fitted."""
     velocity_factor: float = 0.2
     """Initial guess of a frame: previous pose composed with this fraction of the last motion."""
     rank_pairs: int = 4096

@@ -16,7 +16,8 @@ from ..geometry import Camera, project_points
 from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
-from ._dpm import TrackModel, compose_update, Weights, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
+from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
+from ._joints import fit_joint_point, joint_slots, with_joint_slots
 from ._init import initialize_pose
 from ._observe import model_extractor, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
 
@@ -79,6 +80,11 @@ def track_video(
         mp = np.asarray(model.gaussians.means)
         r = float(np.percentile(np.linalg.norm(mp - mp.mean(0), axis=1), 90))
         voxel = config.lod_cells * 2 * r * (1 + 2 * config.roi_margin) / obsr.grid_size
+    use_joints = config.joints and not separable
+    neighbour: dict[int, int] = {}
+    if use_joints:
+        r_pair = float(model.meta.get("arap_radius_m", 0.0025))
+        model, neighbour = with_joint_slots(model, r_pair, max(4 * r_pair, 0.08 * float(model.meta.get("scale_m", 0.05))))
     tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel, touch=config.weights.touch > 0)
     if not config.contact_pivots:
         tm = eqx.tree_at(lambda m: m.part_pivots, tm, jnp.zeros_like(tm.part_pivots))
@@ -107,31 +113,40 @@ def track_video(
     posed0 = apply_part_poses(tm.gaussians, rest, tm.part_centroids)
     rcfg = choose_config(posed0, Camera(obsr.grid_intrinsics(box0), T_cam_obj), headroom=2.0)
     key = jax.random.key(config.seed)
-    T_parts: list[jaxlie.SE3] = []
-    obs_all, residual, visible, losses = [], [], [], []
+
+    def per_frame_pass(tm, w, key, desc, record=True):
+        T_parts: list[jaxlie.SE3] = []
+        obs_all, residual, visible, losses = [], [], [], []
+        t_first = None
+        bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
+        for t in bar:
+            prev = T_parts[-1] if T_parts else rest
+            prev2 = T_parts[-2] if len(T_parts) > 1 else None
+            T_guess = extrapolate(prev, prev2, config.velocity_factor)
+            box = _roi_for(tm, T_guess, T_cam_obj, K, config.roi_margin)
+            obs = obsr.observe(t, demo.frames[t], box)
+            key, sub = jax.random.split(key)
+            tf = time.perf_counter()
+            T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
+            T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
+            if t_first is None:
+                t_first = time.perf_counter() - tf
+            T_parts.append(T)
+            obs_all.append(obs)
+            residual.append(np.asarray(aux["part_residual"]))
+            visible.append(np.asarray(aux["part_visible"]))
+            losses.append(float(aux["loss_curve"][-1]))
+            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+            if log is not None and record:
+                log("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux})
+        return T_parts, obs_all, residual, visible, losses, key, t_first
+
     t_frames = time.perf_counter()
-    t_first = None
-    bar = tqdm(range(demo.num_frames), desc="track", disable=not progress)
-    for t in bar:
-        prev = T_parts[-1] if T_parts else rest
-        prev2 = T_parts[-2] if len(T_parts) > 1 else None
-        T_guess = extrapolate(prev, prev2, config.velocity_factor)
-        box = _roi_for(tm, T_guess, T_cam_obj, K, config.roi_margin)
-        obs = obsr.observe(t, demo.frames[t], box)
-        key, sub = jax.random.split(key)
-        tf = time.perf_counter()
-        T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
-        T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
-        if t_first is None:
-            t_first = time.perf_counter() - tf
-        T_parts.append(T)
-        obs_all.append(obs)
-        residual.append(np.asarray(aux["part_residual"]))
-        visible.append(np.asarray(aux["part_visible"]))
-        losses.append(float(aux["loss_curve"][-1]))
-        bar.set_postfix(loss=f"{losses[-1]:.3f}")
-        if log is not None:
-            log("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux})
+    joint_info: dict = {}
+    if use_joints:
+        tm, joint_info, key = _discover_joints(tm, neighbour, w, config, key, per_frame_pass)
+        timings["joint_pass_s"] = time.perf_counter() - t_frames
+    T_parts, obs_all, residual, visible, losses, key, t_first = per_frame_pass(tm, w, key, "track")
     timings["frames_s"] = time.perf_counter() - t_frames
     timings["frame_compile_s"] = float(t_first or 0.0)
 
@@ -175,6 +190,7 @@ def track_video(
         "mono_depth": getattr(obsr.mono, "name", "?"),
         "separable": separable,
         "config": _config_dict(config),
+        "joints": joint_info,
         "init_config": _config_dict(init),
     }
     return PartTrajectory(
@@ -186,6 +202,44 @@ def track_video(
         loss=np.asarray(losses, np.float64),
         meta=meta,
     )
+
+
+def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, config, key, per_frame_pass):
+    """`TrackConfig.joints`: first pass on the contact band (weak, saturating ARAP), joint points
+    fitted from it, and the TrackModel of the second pass (tied at the joints, pivoting there)."""
+    slots = joint_slots(tm)
+    ids = np.asarray(tm.gaussians.part_ids)
+    pairs = np.asarray(tm.arap_pairs)
+    is_slot = np.zeros(len(pairs), bool)
+    is_slot[[p for _, _, p in slots.values()]] = True
+    band_w = np.where(is_slot, 0.0, 1.0).astype(np.float32)
+    means = np.asarray(tm.gaussians.means, np.float64)
+    cents = np.asarray(tm.part_centroids, np.float64)
+    P = tm.num_parts
+    tm_a = eqx.tree_at(lambda m: (m.arap_weight, m.part_pivots), tm,
+                       (jnp.asarray(band_w), jnp.asarray(contact_pivots(means, ids, pairs, band_w, cents, P), jnp.float32)))  # fmt: skip
+    w_a = eqx.tree_at(lambda x: (x.arap, x.arap_alpha), w, (jnp.asarray(config.joint_first_arap, jnp.float32), jnp.asarray(-2.0, jnp.float32)))
+    T_a, *_, key, _ = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False)
+    T_a = np.stack([np.asarray(T.wxyz_xyz) for T in T_a])
+    # second pass: jointed parts tied only at their joint; others keep the weak band
+    weak = config.joint_first_arap / max(float(config.weights.arap), 1e-12)
+    pw = np.where(is_slot, 0.0, weak).astype(np.float32)
+    info = {}
+    for k, (i, j, p) in slots.items():
+        nb = neighbour.get(k)
+        X = None if nb is None else fit_joint_point(T_a, cents, k, nb, means[i], config.joint_min_angle_deg)
+        info[str(k)] = {"neighbour": nb, "point": None if X is None else [float(v) for v in X]}
+        if X is None:
+            continue
+        means[i] = means[j] = X
+        pw[p] = 1.0
+        mine = ((ids[pairs[:, 0]] == k) & (ids[pairs[:, 1]] == nb)) | ((ids[pairs[:, 1]] == k) & (ids[pairs[:, 0]] == nb))
+        pw[mine & ~is_slot] = 0.0
+    g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
+    piv = contact_pivots(means, ids, pairs, pw, cents, P)
+    tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
+                       (g, jnp.asarray(pw), jnp.asarray(piv, jnp.float32)))  # fmt: skip
+    return tm_b, info, key
 
 
 def _config_dict(cfg) -> dict:
