@@ -38,8 +38,8 @@ class TrackModel(eqx.Module):
     """Pivot of each part's tangent update, in the part frame (metres from the rest centroid): the
     centre of the part's ARAP contact pairs (a hinge's rotation is then one coordinate of the
     update instead of a coupled rotation + translation, which a diagonal optimiser like Adam
-    follows badly); zero (the centroid) for parts without pairs and for the largest part of an
-    object with more than two parts (`contact_pivots`)."""
+    follows badly); zero (the centroid) for parts without pairs and for the largest part (except
+    in joint discovery's second pass on a two-part object, `contact_pivots`)."""
     arap_pairs: Int[Array, "m 2"]
     arap_weight: Float[Array, " m"]
     touch_points: Int[Array, " e"]
@@ -153,17 +153,17 @@ def touch_candidates(means, part_ids, pairs, pair_w, k: int = TOUCH_CANDIDATES):
     return p, np.concatenate(cands), np.concatenate(rest), np.ones(len(p)), np.concatenate(dirs), pair_dirs
 
 
-def contact_pivots(means, part_ids, pairs, pair_w, centroids, P: int) -> np.ndarray:
-    """Per part: mean midpoint of its cross-part ARAP pairs minus its centroid (P×3, part frame);
-    zero for parts without pairs and for the largest part when it touches several parts (the hub
-    of a frog's legs turns about its centroid). With two parts both pivot at their contact, so
-    either may be the one that turns (the stapler's arm has more Gaussians than its base)."""
+def contact_pivots(means, part_ids, pairs, pair_w, centroids, P: int, root_too: bool = False) -> np.ndarray:
+    """Per part: mean midpoint of its cross-part ARAP pairs of weight > 0 minus its centroid (P×3, part
+    frame); zero for parts without pairs and for the largest part (the root) unless `root_too`
+    (joint discovery ties a two-part object at one joint, about which either part may turn: the
+    stapler's arm has more Gaussians than its base)."""
     piv = np.zeros((P, 3))
     counts = np.bincount(part_ids, minlength=P)
     root = int(np.argmax(counts))
     pairs = pairs[pair_w > 0]
     for k in range(P):
-        if k == root and P > 2:
+        if k == root and not root_too:
             continue
         sel = (part_ids[pairs[:, 0]] == k) | (part_ids[pairs[:, 1]] == k)
         if sel.any():

@@ -236,7 +236,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         mine = ((ids[pairs[:, 0]] == k) & (ids[pairs[:, 1]] == nb)) | ((ids[pairs[:, 1]] == k) & (ids[pairs[:, 0]] == nb))
         pw[mine & ~is_slot] = 0.0
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
-    piv = contact_pivots(means, ids, pairs, pw, cents, P)
+    piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
                        (g, jnp.asarray(pw), jnp.asarray(piv, jnp.float32)))  # fmt: skip
     return tm_b, info, key
