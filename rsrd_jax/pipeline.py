@@ -58,7 +58,7 @@ class PipelineConfig:
     """Tracking ROI crop side (pixels)."""
     track_joints: bool = True
     """Joint discovery in tracking (`TrackConfig.joints`): on 30-frame studio demos it took the
-    stapler from 10.2 / 12.3 mm to 2.0 / 5.3 mm object-frame ADD."""
+    stapler from 10.2 / 12.3 mm to 2.5 / 5.6 mm object-frame ADD."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
