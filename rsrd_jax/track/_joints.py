@@ -49,8 +49,8 @@ def with_joint_slots(model, radius: float, near: float):
     """The model with contact-band ARAP pairs and, for every part that touches another, two
     invisible Gaussians (the part's and its most-touching neighbour's) at the centre of their
     contact, paired with each other. Returns (model, neighbour: dict part -> neighbour part).
-    The largest part (the tracker's root) gets no slot when it has one neighbour (that neighbour's
-    joint ties them already)."""
+    The largest part (the tracker's root) gets no slot of its own: every part touching it is tied
+    to it by that part's slot."""
     g = model.gaussians
     means = np.asarray(g.means, np.float64)
     labels = np.asarray(g.part_ids)

@@ -216,8 +216,9 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     means = np.asarray(tm.gaussians.means, np.float64)
     cents = np.asarray(tm.part_centroids, np.float64)
     P = tm.num_parts
+    use = 1.0 if config.contact_pivots else 0.0  # contact_pivots=False: every part turns about its centroid
     tm_a = eqx.tree_at(lambda m: (m.arap_weight, m.part_pivots), tm,
-                       (jnp.asarray(band_w), jnp.asarray(contact_pivots(means, ids, pairs, band_w, cents, P), jnp.float32)))  # fmt: skip
+                       (jnp.asarray(band_w), jnp.asarray(use * contact_pivots(means, ids, pairs, band_w, cents, P), jnp.float32)))  # fmt: skip
     w_a = eqx.tree_at(lambda x: (x.arap, x.arap_alpha), w, (jnp.asarray(config.joint_first_arap, jnp.float32), jnp.asarray(-2.0, jnp.float32)))
     T_a, *_, key, _ = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False)
     T_a = np.stack([np.asarray(T.wxyz_xyz) for T in T_a])
@@ -238,7 +239,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
     piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
-                       (g, jnp.asarray(pw), jnp.asarray(piv, jnp.float32)))  # fmt: skip
+                       (g, jnp.asarray(pw), jnp.asarray(use * piv, jnp.float32)))  # fmt: skip
     return tm_b, info, key
 
 
