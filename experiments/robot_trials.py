@@ -155,6 +155,9 @@ def figure(res: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
+    from rsrd_jax._cache import enable_compilation_cache
+
+    enable_compilation_cache()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--objects", nargs="+", default=None, help="studio objects (default: all)")
     ap.add_argument("--yaws", type=int, default=10, help="table orientations per object")

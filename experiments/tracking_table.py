@@ -23,7 +23,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from rsrd_jax.io import atomic_write_json, atomic_write_text, read_demo, read_demo_gt  # noqa: E402
-from rsrd_jax.parts import BuildConfig, build_object_model, load_object_model, save_object_model  # noqa: E402
+from rsrd_jax.parts import BuildConfig, FieldConfig, FitConfig, build_object_model, load_object_model, save_object_model  # noqa: E402
+from rsrd_jax.pipeline import PipelineConfig  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
 from rsrd_jax.track import (  # noqa: E402
     InitConfig,
@@ -36,41 +37,52 @@ from rsrd_jax.track import (  # noqa: E402
 )
 
 ABLATIONS = {
-    "RSRD (ours)": LossWeights(),
-    "no depth": LossWeights(depth_rank=0.0),
-    "no ARAP": LossWeights(arap=0.0),
-    "photometric only": LossWeights(feature=0.0, depth_rank=0.0, arap=0.0, rgb=1.0),
+    "RSRD (ours)": {"weights": LossWeights()},
+    "+ joint discovery": {"weights": LossWeights(), "joints": True},
+    "no depth": {"weights": LossWeights(depth_rank=0.0)},
+    "no ARAP": {"weights": LossWeights(arap=0.0)},
+    "photometric only": {"weights": LossWeights(feature=0.0, depth_rank=0.0, arap=0.0, rgb=1.0)},
 }
+"""TrackConfig options of each row (the rest at their defaults)."""
 
 
-def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str]) -> dict:
+def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default") -> dict:
     results: dict = {}
     for name in objects:
         root = work / name
+        pipe = PipelineConfig()
         if not (root / "demo" / "demo.mp4").is_file():
-            cfg = StudioConfig(demo_frames=frames, scan_views=24 if quick else 48, parts=("scan", "demo"))
+            if size == "pipeline":
+                cfg = StudioConfig(demo_frames=frames, scan_views=pipe.scan_views, scan_size=pipe.scan_size, parts=("scan", "demo"))
+            else:
+                cfg = StudioConfig(demo_frames=frames, scan_views=24 if quick else 48, parts=("scan", "demo"))
             make_object(name, root, cfg, overwrite=True)
         mdir = root / "model"
         if (mdir / "model.json").is_file():
             model = load_object_model(mdir)
         else:
-            model = build_object_model(root / "scan", BuildConfig())
+            bcfg = BuildConfig()
+            if size == "pipeline":  # the `rsrd-jax demo` build
+                bcfg = BuildConfig(fit=FitConfig(iterations=pipe.fit_iterations, max_gaussians=pipe.max_gaussians),
+                                   field=FieldConfig(iterations=pipe.field_iterations))  # fmt: skip
+            model = build_object_model(root / "scan", bcfg)
             save_object_model(model, mdir)
-        demo = read_demo(root / "demo" / "demo.mp4")
+        demo = read_demo(root / "demo" / "demo.mp4", max_frames=frames)
         gt = read_demo_gt(root / "demo")
         pts = [model.part_points(k) for k in range(model.num_parts)]
         results[name] = {}
         for ab in ablations:
-            cfg = TrackConfig(weights=ABLATIONS[ab], smooth_iters=10 if quick else 30)
+            cfg = TrackConfig(**{"smooth_iters": 10 if quick else 30, **ABLATIONS[ab]})
             t0 = time.perf_counter()
             traj = track_video(model, demo, cfg, InitConfig(), StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"))
-            m = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"], pts)
+            m = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"][: traj.num_frames], pts)
             results[name][ab] = {
                 "add_obj_mm": m["mean_add_obj_mm"],
                 "add_cam_mm": m["mean_add_mm"],
                 "per_part_add_obj_mm": m["add_obj_mm"],
                 "seconds": time.perf_counter() - t0,
                 "frames_per_second": traj.meta["frames_per_second"],
+                "timings_s": traj.meta["timings_s"],
             }
             print(name, ab, f"ADD(obj) {m['mean_add_obj_mm']:.2f} mm, ADD(cam) {m['mean_add_mm']:.2f} mm", flush=True)
     return results
@@ -93,14 +105,19 @@ def table(results: dict, ablations: list[str]) -> str:
 
 
 def main() -> None:
+    from rsrd_jax._cache import enable_compilation_cache
+
+    enable_compilation_cache()
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--objects", nargs="+", default=list_objects())
     p.add_argument("--frames", type=int, default=90)
     p.add_argument("--ablations", nargs="+", default=list(ABLATIONS), choices=list(ABLATIONS))
     p.add_argument("--quick", action="store_true", help="fewer views and smoothing iterations")
+    p.add_argument("--size", choices=("default", "pipeline"), default="default",
+                   help="scan and build: default (48 views 320×240, BuildConfig()) or the `rsrd-jax demo` sizes")  # fmt: skip
     p.add_argument("--work", type=Path, default=Path("experiments/work/tracking"))
     a = p.parse_args()
-    res = run(a.objects, a.frames, a.quick, a.work, a.ablations)
+    res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size)
     out = Path(__file__).resolve().parent / "results"
     atomic_write_json(out / "tracking_table.json", res)
     atomic_write_text(out / "tracking_table.md", table(res, a.ablations))

@@ -491,6 +491,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from ._cache import enable_compilation_cache
+
+    enable_compilation_cache()
     return int(args.func(args) or 0)
 
 

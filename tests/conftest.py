@@ -8,6 +8,7 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+os.environ.setdefault("RSRD_JAX_NO_COMPILE_CACHE", "1")  # CLI tests in-process: no ~/.cache writes
 
 import rsrd_jax._typecheck  # noqa: E402,F401  (the checker pyproject's --jaxtyping-packages names)
 import jax  # noqa: E402

@@ -57,3 +57,25 @@ def test_benchmark_runner_writes_records(tmp_path):
 def test_benchmark_runner_rejects_unknown_name():
     proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "nope"], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode != 0 and "unknown benchmark" in proc.stderr
+
+
+def test_compilation_cache_stores_and_can_be_turned_off(tmp_path):
+    """`rsrd-jax` turns on JAX's persistent compilation cache (a later process loads the tracker's
+    and planner's compiled functions instead of compiling them again); the environment variable
+    turns it off."""
+    import os
+
+    code = (
+        "import sys, jax, jax.numpy as jnp\n"
+        "from rsrd_jax._cache import enable_compilation_cache\n"
+        "d = enable_compilation_cache(sys.argv[1], min_compile_time_s=0.0)\n"
+        "print(d)\n"
+        "jax.jit(lambda x: jnp.sin(x) @ x.T)(jnp.ones((8, 8))).block_until_ready()\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("RSRD_JAX_NO_COMPILE_CACHE", "JAX_COMPILATION_CACHE_DIR")}
+    on = subprocess.run([sys.executable, "-c", code, str(tmp_path / "on")], env=env, capture_output=True, text=True, check=True)
+    assert on.stdout.strip() == str(tmp_path / "on")
+    assert any(p.is_file() for p in (tmp_path / "on").rglob("*")), "nothing was stored"
+    env["RSRD_JAX_NO_COMPILE_CACHE"] = "1"
+    off = subprocess.run([sys.executable, "-c", code, str(tmp_path / "off")], env=env, capture_output=True, text=True, check=True)
+    assert off.stdout.strip() == "None" and not (tmp_path / "off").exists()

@@ -347,6 +347,36 @@ def test_vmap_over_part_poses_gradient():
     assert bool(jnp.all(jnp.isfinite(batched))) and float(jnp.max(jnp.abs(batched))) > 0
 
 
+def test_materialise_stays_a_conditional_under_vmap():
+    """`materialise` keeps XLA from fusing stored values into their consumers by passing them
+    through a `cond`. Under vmap a data-derived predicate would be batched and the `cond` would
+    become a `select` (measured: the vmapped render gradient then cost 9× a single one); its
+    batching rule keeps one `cond` for the whole batch, as many as in the unbatched gradient."""
+    from rsrd_jax.splat._composite import materialise
+
+    g = _scene(29, parts=2)
+    centroids = jnp.asarray([[0.0, 0.0, 3.0], [0.5, 0.0, 3.0]], jnp.float32)
+    rest = rest_part_poses(centroids)
+    cam = _camera()
+
+    def loss(xi):
+        posed = apply_part_poses(g, rest @ jaxlie.SE3.exp(xi), centroids)
+        return jnp.sum(render(posed, cam, CFG).features ** 2)
+
+    def conds(jaxpr) -> int:
+        return str(jaxpr).count(" cond[")
+
+    xis = jnp.zeros((3, 2, 6), jnp.float32)
+    single = conds(jax.make_jaxpr(jax.grad(loss))(xis[0]))
+    batched = conds(jax.make_jaxpr(jax.vmap(jax.grad(loss)))(xis))
+    if jax.default_backend() == "cpu":
+        assert single >= 2
+    assert batched == single
+    x = jnp.arange(12.0).reshape(3, 4)
+    np.testing.assert_array_equal(np.asarray(jax.vmap(materialise)(x)), np.asarray(x))
+    assert conds(jax.make_jaxpr(jax.vmap(materialise))(x)) == (1 if jax.default_backend() == "cpu" else 0)
+
+
 def test_choose_config_host_lists_cover_device_lists():
     """`choose_config` sizes budgets from numpy lists: they must hold every pair the device
     binning keeps (a superset: the host ellipse test is slightly looser), with the same total."""

@@ -254,9 +254,31 @@ def materialise(xs):
     device-side predicate would cost a host sync, and fusion is left to the compiler."""
     if jax.default_backend() != "cpu":
         return xs
+    return _materialise_cpu(xs)
+
+
+@jax.custom_jvp
+def _materialise_cpu(xs):
+    return _materialise_cond(xs)
+
+
+@_materialise_cpu.defjvp
+def _materialise_jvp(primals, tangents):
+    return _materialise_cpu(primals[0]), tangents[0]
+
+
+@jax.custom_batching.custom_vmap
+def _materialise_cond(xs):
     v = jax.tree.leaves(xs)[0].reshape(-1)[0]
     pred = jnp.isnan(v) | ~jnp.isnan(v)
     return jax.lax.cond(pred, lambda x: x, lambda x: jax.tree.map(jnp.zeros_like, x), xs)
+
+
+@_materialise_cond.def_vmap
+def _materialise_batched(axis_size, in_batched, xs):
+    # Under vmap a predicate computed from batched values would be batched too, and the cond
+    # would become a select that XLA sees through; applied to the whole batch it stays a cond.
+    return _materialise_cond(xs), in_batched[0]
 
 
 def _rows_fwd(params, table, depth, ids, layout, n_tiles, tile_size, kc):

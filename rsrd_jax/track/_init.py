@@ -192,17 +192,30 @@ def initialize_pose(
         md = jnp.asarray(crop(metric_depth_full.astype(np.float32), seed_box, g, 0))  # nearest
     cfg_full = render_config([T_seeds.wxyz_xyz[i] for i in range(0, len(R), max(1, len(R) // 4))], obs_s.intrinsics)
     lrs = lr_schedule(cfg.lr_start, cfg.lr_end, cfg.iters)
-    Ts, losses = _optimise_seeds(tm, T_seeds, jnp.asarray(c, jnp.float32), obs_s, lrs, cfg_full, md, cfg.depth_weight)
-    best = int(jnp.argmin(losses))
-    T_best = jaxlie.SE3(Ts[best])
+    c32 = jnp.asarray(c, jnp.float32)
+    n_screen = cfg.screen_iters if 0 < cfg.screen_iters < cfg.iters else cfg.iters
+    Ts, losses = _optimise_seeds(tm, T_seeds, c32, obs_s, lrs[:n_screen], cfg_full, md, cfg.depth_weight)
+    survivors = np.arange(len(R))
+    final_losses = losses
+    if n_screen < cfg.iters and cfg.keep_seeds < len(R):
+        # successive halving: the best `keep_seeds` continue (fresh Adam moments, same schedule)
+        survivors = np.argsort(np.asarray(losses))[: max(cfg.keep_seeds, 1)]
+        Ts, final_losses = _optimise_seeds(tm, jaxlie.SE3(Ts[survivors]), c32, obs_s, lrs[n_screen:], cfg_full, md, cfg.depth_weight)
+    elif n_screen < cfg.iters:
+        Ts, final_losses = _optimise_seeds(tm, jaxlie.SE3(Ts), c32, obs_s, lrs[n_screen:], cfg_full, md, cfg.depth_weight)
+    k = int(jnp.argmin(final_losses))
+    best = int(survivors[k])
+    T_best = jaxlie.SE3(Ts[k])
     # refine the best seed on an ROI around it
     box = roi_box_fn(T_best)
     obs_roi = observe(box)
     md_roi = jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0)) if metric_depth_full is not None else None
     cfg_roi = render_config([T_best.wxyz_xyz], obs_roi.intrinsics)
     lrs2 = lr_schedule(cfg.lr_end, cfg.lr_end * 0.5, cfg.refine_iters)
-    Ts2, losses2 = _optimise_seeds(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), jnp.asarray(c, jnp.float32), obs_roi, lrs2, cfg_roi, md_roi, cfg.depth_weight)
+    Ts2, losses2 = _optimise_seeds(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), c32, obs_roi, lrs2, cfg_roi, md_roi, cfg.depth_weight)
     res = InitResult(jaxlie.SE3(Ts2[0]), losses, best, dist, int(len(uv)))
-    info = {"seed_losses": np.asarray(losses).tolist(), "best_seed": best, "distance_prior_m": dist,
+    info = {"seed_losses": np.asarray(losses).tolist(), "screen_iters": int(n_screen),
+            "survivors": [int(i) for i in survivors], "survivor_losses": np.asarray(final_losses).tolist(),
+            "best_seed": best, "distance_prior_m": dist,
             "matches": int(len(uv)), "refined_loss": float(losses2[0]), "match_pixel": [float(u), float(v)]}  # fmt: skip
     return res, info

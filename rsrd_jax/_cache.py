@@ -1,0 +1,40 @@
+"""Persistent XLA compilation cache for the command line and experiments.
+
+The tracker, the initialiser and the planner each compile a few large functions (8–12 s each on
+a 2-core CPU); with the cache a later process with the same shapes loads them instead (tracing
+still runs). The library never turns it on by itself: `rsrd-jax` does, unless
+`RSRD_JAX_NO_COMPILE_CACHE=1`; benchmarks leave it off so that they report cold compile times.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def default_cache_dir() -> Path:
+    """`$JAX_COMPILATION_CACHE_DIR`, else `$XDG_CACHE_HOME/rsrd_jax/xla` (`~/.cache/...`)."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "rsrd_jax" / "xla"
+
+
+def enable_compilation_cache(path: str | Path | None = None, min_compile_time_s: float = 1.0) -> Path | None:
+    """Points JAX's persistent compilation cache at `path` (default `default_cache_dir()`);
+    functions that took at least `min_compile_time_s` to compile are stored.
+
+    Returns the directory, or None when `RSRD_JAX_NO_COMPILE_CACHE` is set or the directory
+    cannot be created (the cache is an optimisation; nothing depends on it)."""
+    if os.environ.get("RSRD_JAX_NO_COMPILE_CACHE", "") not in ("", "0"):
+        return None
+    import jax
+
+    d = Path(path) if path is not None else default_cache_dir()
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(d))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time_s))
+    return d
