@@ -101,6 +101,13 @@ def table(results: dict, ablations: list[str]) -> str:
         cams = [results[o][ab]["add_cam_mm"] for o in results]
         cells = [f"{v:.2f} ({c:.1f})" for v, c in zip(vals, cams)]
         lines.append(f"| {ab} | " + " | ".join(cells) + f" | {np.mean(vals):.2f} |")
+    lines += ["", "Per part (object-frame ADD, mm) and tracking rate (frames/s, compilation excluded):", "",
+              "| object | method | per part | frames/s |", "|---|---|---|---|"]  # fmt: skip
+    for o in results:
+        for ab in ablations:
+            r = results[o][ab]
+            parts = " / ".join(f"{v:.1f}" for v in r["per_part_add_obj_mm"])
+            lines.append(f"| {o} | {ab} | {parts} | {r['frames_per_second']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
