@@ -17,6 +17,7 @@ and `end_to_end`). The hand keypoints (demo camera frame) and hand masks are stu
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import shutil
@@ -25,6 +26,7 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rsrd_jax.io import atomic_write_bytes, atomic_write_json, atomic_write_text  # noqa: E402
@@ -83,6 +85,15 @@ def run(objects: list[str], yaws: int, cfg: PipelineConfig, work: Path) -> dict:
             "time_s": round(time.perf_counter() - t0, 1),
         }  # fmt: skip
         atomic_write_json(work / "partial.json", results)
+        # every object compiles its own shapes: drop the compiled executables between objects (a
+        # run over all objects in one process once died in LLVM's JIT: "Cannot allocate memory")
+        jax.clear_caches()
+        gc.collect()
+    return summarise(results)
+
+
+def summarise(results: dict) -> dict:
+    """Adds the `total` stage rates and `failure_causes` over every object's trials."""
     allt = [t for o in results["objects"].values() for t in o["trials"]]
     total = {s: sum(bool(t["stages"].get(s)) for t in allt) / max(len(allt), 1) for s in STAGES}
     total["end_to_end"] = sum(t["end_to_end"] for t in allt) / max(len(allt), 1)
