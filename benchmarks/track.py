@@ -76,7 +76,7 @@ def run(quick: bool) -> list[dict]:
     if quick:
         obj, demos = "red_box", {6: 6}
         scfg = dict(scan_views=8, scan_size=(128, 96), demo_size=(160, 120))
-        bcfg = BuildConfig(fit=FitConfig(iterations=150, max_gaussians=2000), field=FieldConfig(iterations=60))
+        bcfg = BuildConfig(init_gaussians=1500, fit=FitConfig(iterations=150, max_gaussians=2000), field=FieldConfig(iterations=60))
         cases = [("default", 6, 1, {"steps_per_frame": 10, "smooth_iters": 3, "roi_size": 128}, 8)]
     else:
         obj, demos = "stapler", {30: 30, 120: 120}
