@@ -59,6 +59,12 @@ class PipelineConfig:
     track_joints: bool = True
     """Joint discovery in tracking (`TrackConfig.joints`): on 30-frame studio demos it took the
     stapler from 10.2 / 12.3 mm to 2.5 / 5.6 mm object-frame ADD."""
+    track_lr_start: float = 0.01
+    """Tracking's initial learning rate (`TrackConfig.lr_start`; RSRD's 5e-3 is the library
+    default). One frame's Adam solve moves a part by at most about Σ lr (≈ 7° at 5e-3), and the
+    30-frame demos compress a 90–120-frame motion, so fast parts fell behind. Measured with joint
+    discovery, object-frame ADD per part: stapler 2.6 / 6.0 → 2.1 / 4.5 mm, red_box 2.4 / 10.2
+    → 2.8 / 7.5, sunglasses 1.3 / 56.4 / 8.0 → 1.9 / 32.6 / 4.5, frog mean 6.9 → 7.1."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
@@ -192,7 +198,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     if track_dir is None:
         track_dir = out / "track"
         with _stage("track", rep, log):
-            tcfg = TrackConfig(steps_per_frame=cfg.track_steps, roi_size=cfg.track_roi, seed=cfg.seed, joints=cfg.track_joints)
+            tcfg = TrackConfig(steps_per_frame=cfg.track_steps, roi_size=cfg.track_roi, seed=cfg.seed, joints=cfg.track_joints,
+                               lr_start=cfg.track_lr_start)  # fmt: skip
             traj = track_video(model, demo, tcfg, InitConfig(iters=cfg.init_iters),
                                StudioHandMasks(studio_dir / "demo"), StudioDepthOracle(studio_dir / "demo", seed=cfg.seed))  # fmt: skip
             save_trajectory(traj, track_dir)
