@@ -64,7 +64,8 @@ class PipelineConfig:
     default). One frame's Adam solve moves a part by at most about Σ lr (≈ 7° at 5e-3), and the
     30-frame demos compress a 90–120-frame motion, so fast parts fell behind. Measured with joint
     discovery, object-frame ADD per part: stapler 2.6 / 6.0 → 2.1 / 4.5 mm, red_box 2.4 / 10.2
-    → 2.8 / 7.5, sunglasses 1.3 / 56.4 / 8.0 → 1.9 / 32.6 / 4.5, frog mean 6.9 → 7.1."""
+    → 2.8 / 7.5, sunglasses 1.3 / 56.4 / 8.0 → 1.9 / 32.6 / 4.5, frog mean 6.9 → 7.1, nerf_gun
+    3.3 / 17.8 → 2.8 / 20.8."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
