@@ -81,8 +81,7 @@ def run(quick: bool) -> list[dict]:
     else:
         obj, demos = "stapler", {30: 30, 120: 120}
         scfg = dict(scan_views=p.scan_views, scan_size=p.scan_size, demo_size=p.demo_size)
-        bcfg = BuildConfig(fit=FitConfig(iterations=p.fit_iterations, max_gaussians=p.max_gaussians),
-                           field=FieldConfig(iterations=p.field_iterations))  # fmt: skip
+        bcfg = p.build_config()
         cases = [("default (cold, warm)", 30, 2, {}, None), ("joint discovery", 30, 1, {"joints": True}, None),
                  ("default", 120, 1, {}, None)]  # fmt: skip
     out = []

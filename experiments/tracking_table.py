@@ -23,7 +23,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from rsrd_jax.io import atomic_write_json, atomic_write_text, read_demo, read_demo_gt  # noqa: E402
-from rsrd_jax.parts import BuildConfig, FieldConfig, FitConfig, build_object_model, load_object_model, save_object_model  # noqa: E402
+from rsrd_jax.parts import BuildConfig, build_object_model, load_object_model, save_object_model  # noqa: E402
 from rsrd_jax.pipeline import PipelineConfig  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
 from rsrd_jax.track import (  # noqa: E402
@@ -48,9 +48,9 @@ ABLATIONS = {
 
 def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default") -> dict:
     results: dict = {}
+    pipe = PipelineConfig()
     for name in objects:
         root = work / name
-        pipe = PipelineConfig()
         if not (root / "demo" / "demo.mp4").is_file():
             if size == "pipeline":
                 cfg = StudioConfig(demo_frames=frames, scan_views=pipe.scan_views, scan_size=pipe.scan_size, parts=("scan", "demo"))
@@ -61,10 +61,7 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
         if (mdir / "model.json").is_file():
             model = load_object_model(mdir)
         else:
-            bcfg = BuildConfig()
-            if size == "pipeline":  # the `rsrd-jax demo` build
-                bcfg = BuildConfig(fit=FitConfig(iterations=pipe.fit_iterations, max_gaussians=pipe.max_gaussians),
-                                   field=FieldConfig(iterations=pipe.field_iterations))  # fmt: skip
+            bcfg = pipe.build_config() if size == "pipeline" else BuildConfig()  # pipeline: the `rsrd-jax demo` build
             model = build_object_model(root / "scan", bcfg)
             save_object_model(model, mdir)
         demo = read_demo(root / "demo" / "demo.mp4", max_frames=frames)

@@ -84,6 +84,14 @@ class PipelineConfig:
     rerun: bool = True
     """Write rerun recordings of the stages."""
 
+    def build_config(self):
+        """The `BuildConfig` of the pipeline's object model (also used by the experiments and
+        benchmarks that measure at the demo's size)."""
+        from .parts import BuildConfig, FieldConfig, FitConfig
+
+        return BuildConfig(fit=FitConfig(iterations=self.fit_iterations, max_gaussians=self.max_gaussians, seed=self.seed),
+                           field=FieldConfig(iterations=self.field_iterations, seed=self.seed))  # fmt: skip
+
 
 def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.ndarray:
     """Fingertip keypoints in the object frame from the studio's hand oracle and the *tracked*
@@ -149,7 +157,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         (init/traj/grasp/exec) and ``end_to_end``.
     """
     from .io import load_plan, load_trajectory, read_demo, read_demo_gt, save_plan, save_trajectory, write_video
-    from .parts import BuildConfig, FieldConfig, FitConfig, build_object_model, load_object_model, save_object_model
+    from .parts import build_object_model, load_object_model, save_object_model
     from .plan import PlanConfig, plan_robot, read_robot_object_pose
     from .robot import load_yumi
     from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan, with_init
@@ -183,8 +191,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     if model_dir is None:
         model_dir = out / "model"
         with _stage("build", rep, log):
-            bcfg = BuildConfig(fit=FitConfig(iterations=cfg.fit_iterations, max_gaussians=cfg.max_gaussians, seed=cfg.seed),
-                               field=FieldConfig(iterations=cfg.field_iterations, seed=cfg.seed))  # fmt: skip
+            bcfg = cfg.build_config()
             model = build_object_model(studio_dir / "scan", bcfg, progress=True,
                                        rrd_path=model_dir / "build.rrd" if cfg.rerun else None)  # fmt: skip
             save_object_model(model, model_dir)
