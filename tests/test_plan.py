@@ -365,3 +365,55 @@ def test_robot_proxy_pads_cover_finger_pads(robot):
     t = np.clip(np.einsum("nij,ij->ni", pts[:, None] - a[None], b - a) / np.sum((b - a) ** 2, 1), 0, 1)
     dist = np.linalg.norm(pts[:, None] - (a[None] + t[..., None] * (b - a)[None]), axis=-1) - r[None]
     assert np.all(dist.min(1) <= 1e-6)
+
+
+def _flat_bar(T=6):
+    """A 60 × 12 × 6 mm bar lying on the table (centroid 3 mm up), sliding 3 cm along x; top-down
+    grasps across its 12 mm width, the pads' width along the bar."""
+    g = np.stack(np.meshgrid(np.linspace(-0.03, 0.03, 31), np.linspace(-0.006, 0.006, 7),
+                             np.linspace(-0.003, 0.003, 4)), -1).reshape(-1, 3)
+    half = np.array([0.03, 0.006, 0.003])
+    pts = g[np.any(np.abs(np.abs(g) - half) < 1e-9, axis=1)]
+    traj = np.asarray([jaxlie.SE3.from_translation(jnp.asarray([0.03 * s, 0.0, 0.003])).wxyz_xyz
+                       for s in np.linspace(0, 1, T)])[:, None]
+    rolls = np.array([np.pi / 2, 3 * np.pi / 2])
+    down = jaxlie.SO3.from_x_radians(np.pi)
+    Tg = np.stack([jaxlie.SE3.from_rotation(down @ jaxlie.SO3.from_z_radians(float(r))).wxyz_xyz for r in rolls])
+    n = len(rolls)
+    grasps = PartGrasps(
+        T_part_grasp=jnp.asarray(Tg, jnp.float32), width=jnp.full((n,), 0.012), score=jnp.ones(n),
+        valid=jnp.ones(n, bool), base_index=jnp.arange(n), contacts=jnp.zeros((n, 2, 3)), base_valid=jnp.ones(n, bool),
+        result=GraspResult.success, num_hit=jnp.array(n), num_width_ok=jnp.array(n), num_antipodal=jnp.array(n),
+    )  # fmt: skip
+    return pts, traj, grasps
+
+
+def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
+    """The pads end 20 mm past the TCP, so a grasp centred 3 mm above the table can only be seated
+    with the pad tips closer to the table than a 3 mm margin: rejected when the pads keep the
+    margin, planned with ``pad_table_margin`` 1 mm. MuJoCo's own distance confirms the pads keep
+    ≥ 1 mm (and use the allowance); the approach opens the jaw to the grasp width + 2 × 10 mm."""
+    import dataclasses
+
+    import mujoco
+
+    pts, traj, grasps = _flat_bar()
+    cfg = dataclasses.replace(CFG, collision_margin=0.003, pad_table_margin=None)
+    strict = plan_robot(robot, [pts], traj, T_ROBOT_OBJ, grasps={0: grasps}, config=cfg)
+    assert strict.result == PlanResult.collision
+    assert strict.info["rejections"]["grasp_collision"] == 2
+    plan = plan_robot(robot, [pts], traj, T_ROBOT_OBJ, grasps={0: grasps},
+                      config=dataclasses.replace(cfg, pad_table_margin=0.001))
+    assert plan.success, (plan.message, plan.info)
+    assert plan.info["chosen"]["grasp_depth"][0] == pytest.approx(0.019)
+    np.testing.assert_allclose(plan.q_approach[:, 14], 0.006 + 0.01, atol=1e-6)
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    table = m.geom("table").id
+    pads = [m.geom(n).id for n in ("pad_r_finger_r", "pad_r_finger_l")]
+    dist = []
+    for q in np.concatenate([plan.q_keyframes, plan.q_approach[-1:]]):
+        d.qpos[:] = robot.qpos(q)
+        mujoco.mj_forward(m, d)
+        dist.append(min(mujoco.mj_geomDistance(m, d, p, table, 0.05, None) for p in pads))
+    assert 0.001 - 2e-4 <= min(dist) < 0.003

@@ -308,11 +308,12 @@ def hand_geometry(robot: YumiModel, proxy: RobotProxy) -> HandGeometry:
 def hand_clearance(
     robot: YumiModel, hand: HandGeometry, sdf: PartSDF, T_world_tcp: Float[Array, "n k 7"],
     opening: Float[Array, " n"], T_world_part: Float[Array, "k parts 7"], part: Int[Array, ""],
-    check_palm: bool = True,
+    check_palm: bool = True, pad_table_allowance: Float[Array, ""] | float = 0.0,
 ) -> Float[Array, " n"]:
     """Smallest signed distance (m) of a free-floating gripper at TCP poses ``T_world_tcp``
     (n grasps × k keyframes) with finger ``opening`` (m) to the table and the parts: the pads
-    may touch ``part`` (the grasped one), the palm too unless ``check_palm``."""
+    may touch ``part`` (the grasped one), the palm too unless ``check_palm``; the pads' table
+    distances are increased by ``pad_table_allowance`` (m)."""
     geom = robot.geom
     Tt = jaxlie.SE3(geom.table_wxyz_xyz)
     P = sdf.values.shape[0]
@@ -325,6 +326,7 @@ def hand_clearance(
         b = T @ (hand.p1 + o * hand.dp)
         d_tab = capsule_box(a, b, hand.radius, jnp.broadcast_to(Tt.rotation().as_matrix(), (c, 3, 3)),
                             jnp.broadcast_to(Tt.translation(), (c, 3)), jnp.broadcast_to(geom.table_half, (c, 3)))
+        d_tab = d_tab + jnp.where(hand.kind == 2, pad_table_allowance, 0.0)
         t = hand.sample_t[:, None]
         xs = a[hand.sample_cap] * (1 - t) + b[hand.sample_cap] * t
         x_part = jax.vmap(lambda Ti: Ti @ xs)(jaxlie.SE3(Tp).inverse())

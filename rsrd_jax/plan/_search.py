@@ -100,6 +100,11 @@ class PlanConfig(eqx.Module):
     """Allowed joint-limit violation (rad or m)."""
     collision_margin: float = 0.0
     """A distance below this (m) is a collision (self, table, object)."""
+    pad_table_margin: float | None = 0.001
+    """Clearance (m) the finger pads must keep from the table; None = ``collision_margin``. Below
+    the margin so that a fingertip grasp reaches a flat part lying on the table: the pads end
+    20 mm past the TCP, so with a 3 mm margin no grasp centre lower than about 4 mm can be
+    seated (scissors are 7 mm thick). Reported table distances include the pads' allowance."""
     hand_tolerance: float = 0.0
     """Penetration (m) allowed between the gripper (palm + finger pads) and the parts it must not
     touch (0 = strict). The reported object distance includes this allowance."""
@@ -122,15 +127,20 @@ class PlanConfig(eqx.Module):
     grasp score first (RSRD solves 480)."""
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
+    approach_clearance: float | None = 0.01
+    """Finger opening beyond the grasp's half-width during the approach (m per finger, capped at
+    fully open); None = fully open. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open
+    jaw (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 8
     """Best trajectory candidates (by cost) whose approach is solved."""
     top_k_per_arm: int = 4
     """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves)."""
-    grasp_config: GraspConfig = GraspConfig(num_grasps=32)
+    grasp_config: GraspConfig = GraspConfig(num_grasps=64)
     """Antipodal grasp sampling when grasps are not given. More base grasps than RSRD's 10: most
-    are removed by seating (e.g. grasps in the middle of a plate put the palm into it), and
+    are removed by seating (e.g. grasps in the middle of a plate put the palm into it; on the
+    studio scissors only grasps on the rings' outer ends seat, and 32 base grasps had none), and
     ``max_candidates`` caps what is solved."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
@@ -253,9 +263,10 @@ class _Collide(eqx.Module):
 
 
 @eqx.filter_jit
-def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand_tolerance, grip):
+def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand_tolerance, grip, pad_table):
     """Per candidate: max pos/rot error of active arms, max limit violation, min distances
-    (self, table, object) with the grippers at ``grip`` (n, 2) opening per finger (m)."""
+    (self, table, object) with the grippers at ``grip`` (n, 2) opening per finger (m); the pads'
+    table distances are increased by ``pad_table`` (m)."""
     pos, rot = tcp_errors(robot, q, target)  # (n, K, 2)
     pos = jnp.max(jnp.where(active > 0, pos, 0.0), axis=1)
     rot = jnp.max(jnp.where(active > 0, rot, 0.0), axis=1)
@@ -265,6 +276,7 @@ def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand
     d_table, d_obj = jax.vmap(jax.vmap(lambda x, T: proxy_distances(robot, coll.proxy, coll.sdf, x, T),
                                        in_axes=(0, 0)), in_axes=(0, None))(qe, T_world_part)  # (n,K,caps[,P])
     # the gripper (palm + pads) gets ``hand_tolerance`` (m) of allowed penetration into parts
+    d_table = d_table + jnp.where(coll.proxy.kind == 2, pad_table, 0.0)
     hand = (coll.proxy.kind >= 1)[:, None]
     d_obj = jnp.where(mask, d_obj + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
     min_obj = jnp.min(d_obj, axis=(-2, -1))
@@ -286,10 +298,11 @@ class _Batch(eqx.Module):
 def _run_candidates(
     params: CostParams, robot_eval, coll: _Collide, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
     T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool, grip: np.ndarray,
-    q_ref: np.ndarray | None = None, ref_weight: np.ndarray | None = None,
+    q_ref: np.ndarray | None = None, ref_weight: np.ndarray | None = None, q_last: np.ndarray | None = None,
 ) -> _Batch:
     """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded); ``grip`` (n, 2)
-    is the finger opening (m) used in the collision check."""
+    is the finger opening (m) used in the collision check; ``q_last`` (n, 16), if given, replaces
+    each solution's last keyframe (before it is evaluated and returned)."""
     n = x0.shape[0]
     chunk = max(1, cfg.chunk_size)  # always padded: one compilation per (chunk, keyframes)
     solver = SolverConfig(
@@ -310,12 +323,19 @@ def _run_candidates(
             pose = PoseData(jnp.asarray(ts, jnp.float32), jnp.asarray(acts_k), jnp.asarray(pad(q_ref), jnp.float32),
                             jnp.asarray(pad(ref_weight), jnp.float32))
         sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
+        if q_last is not None:
+            sol = eqx.tree_at(lambda r: r.x, sol, sol.x.at[:, -1].set(jnp.asarray(pad(q_last), jnp.float32)))
         ev = _evaluate(robot_eval, coll, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
                        jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32),
-                       jnp.asarray(pad(grip), jnp.float32))
+                       jnp.asarray(pad(grip), jnp.float32), jnp.asarray(_pad_table_allowance(cfg), jnp.float32))
         outs.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
     cat = [np.concatenate(x) for x in zip(*outs)]
     return _Batch(*cat)
+
+
+def _pad_table_allowance(cfg: PlanConfig) -> float:
+    """Allowance (m) added to the pads' table distances so that ``collision_margin`` applies."""
+    return 0.0 if cfg.pad_table_margin is None else cfg.collision_margin - cfg.pad_table_margin
 
 
 def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True,
@@ -520,7 +540,8 @@ def plan_robot(
                 T_tcp = grasp_targets(T_robot_obj, T_obj_part[idx, k], Td)
                 clear.append(np.asarray(hand_clearance(robot_lite, hand, coll.sdf, jnp.asarray(T_tcp, jnp.float32),
                                                        opening, jnp.asarray(T_robot_part, jnp.float32),
-                                                       jnp.asarray(k), config.check_palm_on_grasped_part)))
+                                                       jnp.asarray(k), config.check_palm_on_grasped_part,
+                                                       _pad_table_allowance(config))))
             clear = np.stack(clear, 1) + config.hand_tolerance  # (n, D)
             ok = clear >= config.collision_margin
             j = np.where(ok.any(1), np.argmax(ok, 1), np.argmax(clear, 1))
@@ -737,15 +758,28 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     q_ref = x0.copy()
     ref_w = np.full((n, A), 0.1, np.float32)
     ref_w[:, -1] = 10.0  # end at the trajectory's first keyframe
-    grip = np.full((n, 2), open_grip, np.float32)  # the approach is made with open fingers
-    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
-                        q_ref, ref_w)
-    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    # the approach is made with the fingers opened ``approach_clearance`` beyond the grasp width
+    grip = np.full((n, 2), open_grip, np.float32)
+    if cfg.approach_clearance is not None:
+        for m, c in enumerate(cands):
+            for a, k, i, g in c["arms"]:
+                grip[m, a] = min(float(g.width[i]) / 2 + cfg.approach_clearance, open_grip)
     # The last waypoint reaches the same TCP pose as the trajectory's first keyframe, possibly
-    # elsewhere in the arm's null space; it is replaced by that keyframe (gap recorded).
-    end_gap = np.array([np.max(np.abs(b.q[m, -1] - cands[m]["q"][0])) for m in range(n)])
+    # elsewhere in the arm's null space; it is replaced by that keyframe (gap recorded) before the
+    # segment is checked, so the check sees the configuration the robot will take (with open
+    # fingers here).
+    q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
+    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
+                        q_ref, ref_w, q_last=q_first)
+    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    # largest joint step into the trajectory's first keyframe (large if the segment ended in another
+    # null-space branch)
+    end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)
     att["rejections"]["approach_checked"] = n
     att["rejections"]["approach"] = int(n - alive.sum())
+    att["approach_rejections"] = {k: v for k, v in counts.items() if v}
+    best_m = int(np.argmax(np.min(b.mins, 1)))
+    att["approach_best_min_distance"] = np.round(b.mins[best_m], 4).tolist()  # (self, table, object)
     info["rejections"]["approach"] += int(n - alive.sum())
     if not alive.any():
         return None
@@ -762,7 +796,8 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     mins = np.minimum(c["mins"], b.mins[m])
     q_app = np.asarray(b.q[m], float)
     q_app[-1] = np.asarray(c["q"][0], float)
-    att["approach_joint_gap"] = float(end_gap[m])
+    q_app[:, 14:16] = grip[m]  # the finger opening of the approach (the simulator uses it)
+    att["approach_last_step_rad"] = float(end_gap[m])
     return dict(
         q=np.asarray(c["q"], float), cost=c["cost"], lm_result=LMResult._index_to_message[c["lm_result"]],
         iterations=c["iterations"],

@@ -2,7 +2,7 @@
 
 Sequence (position servos track a time-scaled joint reference; ``servo_ctrl`` feed-forward):
 settle at home → transit home → pre-grasp (smooth point-to-point) → approach (pre-grasp → grasp,
-grippers open) → close the active grippers until the fingers stall → follow ``q_video``
+grippers opened as the plan's approach says) → close the active grippers until the fingers stall → follow ``q_video``
 (piecewise linear, time-scaled so no arm joint exceeds ``joint_speed``) → open → retreat along
 −TCP z → settle. The object is simulated with its real joints; nothing is welded to the gripper,
 so a part moves only through finger contacts and friction.
@@ -386,7 +386,10 @@ def simulate_plan(
     active, part = np.asarray(plan.active, bool), np.asarray(plan.part, int)
     arms = np.flatnonzero(active)
     qv, qa = np.asarray(plan.q_video, float).copy(), np.asarray(plan.q_approach, float).copy()
-    qv[:, 14:16] = qa[:, 14:16] = HOME_Q[14:16]
+    # the approach's finger opening comes from the plan (its gripper columns; fully open for idle
+    # arms or when the plan leaves them unset); the follow phase's are driven by the grip
+    open_q = np.where(active & np.isfinite(qa[0, 14:16]), np.clip(qa[0, 14:16], 0.0, HOME_Q[14:16]), HOME_Q[14:16])
+    qv[:, 14:16] = qa[:, 14:16] = open_q
     if cfg.start not in ("pregrasp", "home"):
         raise ValueError(f"config.start must be 'pregrasp' or 'home', got {cfg.start!r}")
     q_start = qa[0] if cfg.start == "pregrasp" else HOME_Q
@@ -401,6 +404,7 @@ def simulate_plan(
     mujoco.mj_forward(m, d)
     geoms_start = d.geom_xpos[np.concatenate(scene.part_geoms)].copy()
     run = _Runner(scene, plan, cfg, video, pbar)
+    run.grip = open_q.copy()
     try:
         # settle, transit to pre-grasp (from home only), approach with open grippers
         run.phase = 0
