@@ -285,7 +285,8 @@ def cmd_plan(a: argparse.Namespace) -> int:
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
-        grasp_config=GraspConfig(num_grasps=a.grasps),
+        grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
+        pad_table_margin=a.pad_table_margin, approach_clearance=a.approach_clearance,
     )  # fmt: skip
     t0 = time.perf_counter()
     robot = load_yumi()
@@ -454,13 +455,19 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--max-iterations", type=int, default=50, help="LM iterations per solve")
     pl.add_argument("--approach", type=float, default=0.06, help="pre-grasp offset along the gripper axis (m)")
     pl.add_argument("--approach-steps", type=int, default=6, help="waypoints of the approach segment")
-    pl.add_argument("--grasps", type=int, default=32,
+    pl.add_argument("--grasps", type=int, default=64,
                     help="base antipodal grasps per part (x 2 signs x 8 rolls x 3 shifts candidates)")  # fmt: skip
     pl.add_argument("--max-candidates", type=int, default=480, help="seated grasp candidates solved per part and arm")
     pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
     pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
+    pl.add_argument("--collision-margin", type=float, default=0.0,
+                    help="clearance (m) below which a robot-table/part/self distance is a collision (`rsrd-jax demo`: 0.003)")  # fmt: skip
+    pl.add_argument("--pad-table-margin", type=float, default=0.001,
+                    help="clearance (m) the finger pads keep from the table (fingertip grasps of flat parts)")  # fmt: skip
+    pl.add_argument("--approach-clearance", type=float, default=0.01,
+                    help="finger opening beyond the grasp's half-width during the approach (m per finger)")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")
