@@ -137,7 +137,7 @@ def track_video(
             residual.append(np.asarray(aux["part_residual"]))
             visible.append(np.asarray(aux["part_visible"]))
             losses.append(float(aux["loss_curve"][-1]))
-            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+            bar.set_postfix(loss=f"{losses[-1]:.3g}")
             if log is not None and record:
                 log("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux})
         compile_s[0] += _first_call_excess(solve_s)
