@@ -257,3 +257,18 @@ def test_planner_ground_truth_plan_succeeds_in_sim(stapler, tmp_path):
     r = simulate_plan(load_plan(tmp_path / "plan"), stapler, progress=False)
     assert r.success, r.reasons
     assert r.metrics["base_displacement_mm"] < 10.0
+
+
+def test_approach_uses_the_plans_finger_opening(stapler, gt_plan, gt_result):
+    """The approach is made with the jaw the plan's ``q_approach`` gripper columns ask for (the
+    planner opens it to the grasp width + 2 × ``approach_clearance``), read back from MuJoCo's
+    finger joints during the approach phase."""
+    a = int(np.flatnonzero(gt_plan.active)[0])
+    qa = np.array(gt_plan.q_approach, float)
+    qa[:, 14 + a] = 0.02
+    r = simulate_plan(dataclasses.replace(gt_plan, q_approach=qa), stapler, progress=False)
+    fingers = r.robot_q[r.phase == 2, 14 + a]
+    assert len(fingers) and np.abs(fingers - 0.02).max() < 1.5e-3
+    base = gt_result.robot_q[gt_result.phase == 2, 14 + a]
+    expect = min(max(float(gt_plan.q_approach[0, 14 + a]), 0.0), HOME_Q[14 + a])
+    assert np.abs(base - expect).max() < 1.5e-3 and abs(expect - 0.02) > 3e-3
