@@ -58,3 +58,22 @@ def test_hand_keypoints_follow_the_tracked_object_frame(tmp_path):
     M = np.asarray(T_ds.inverse().as_matrix(), np.float64)
     expect = kw @ M[:3, :3].T + M[:3, 3]
     np.testing.assert_allclose(kp, expect, atol=1e-5)
+
+
+def test_robot_trial_rates_are_cumulative():
+    """A trial counts at a stage only if it passed that stage and every one before it (the
+    simulator scores Exec even after a Grasp failure); markdown and totals agree."""
+    from experiments.robot_trials import markdown, stage_rates, summarise
+
+    ok = {"init": True, "traj": True, "grasp": True, "exec": True}
+    slip = {"init": True, "traj": True, "grasp": False, "exec": True}  # turned in the jaw, ended right
+    noplan = {"init": True, "traj": False, "grasp": None, "exec": None}
+    trials = [dict(stages=s, end_to_end=all(bool(v) for v in s.values()), failure=f, reason="")
+              for s, f in ((ok, None), (slip, "grasp"), (noplan, "traj"))]
+    r = stage_rates(trials)
+    assert r == pytest.approx({"init": 1.0, "traj": 2 / 3, "grasp": 1 / 3, "exec": 1 / 3, "end_to_end": 1 / 3})
+    res = summarise({"objects": {"a": {"trials": trials[:2], "tracking_add_obj_mm": 1.0},
+                                 "b": {"trials": trials[2:], "tracking_add_obj_mm": 2.0}}})
+    assert res["objects"]["a"]["rates"]["exec"] == 0.5 and res["total"]["exec"] == pytest.approx(1 / 3)
+    assert res["failure_causes"] == {"grasp": 1, "traj": 1}
+    assert "| a | 2/2 | 2/2 | 1/2 | 1/2 | 1/2 |" in markdown(res)
