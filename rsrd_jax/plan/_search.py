@@ -275,8 +275,8 @@ def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand
     res = collision_distances(robot, qe, None, None, margin=0.0, check_finite=False)
     d_table, d_obj = jax.vmap(jax.vmap(lambda x, T: proxy_distances(robot, coll.proxy, coll.sdf, x, T),
                                        in_axes=(0, 0)), in_axes=(0, None))(qe, T_world_part)  # (n,K,caps[,P])
-    # the gripper (palm + pads) gets ``hand_tolerance`` (m) of allowed penetration into parts
     d_table = d_table + jnp.where(coll.proxy.kind == 2, pad_table, 0.0)
+    # the gripper (palm + pads) gets ``hand_tolerance`` (m) of allowed penetration into parts
     hand = (coll.proxy.kind >= 1)[:, None]
     d_obj = jnp.where(mask, d_obj + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
     min_obj = jnp.min(d_obj, axis=(-2, -1))
