@@ -164,7 +164,7 @@ class RobotPlan(eqx.Module):
     q_video: np.ndarray
     """(T, 16) joints linearly resampled to every video frame."""
     q_approach: np.ndarray
-    """(A, 16) approach segment, pre-grasp to grasp (its last row is ``q_keyframes[0]``); its
+    """(A, 16) approach segment, pre-grasp to grasp (its last row is ``q_keyframes[0]`` in the arm joints); its
     gripper columns are the finger opening of the approach (``PlanConfig.approach_clearance``),
     which the simulator uses."""
     tcp_target: np.ndarray
