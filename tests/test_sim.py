@@ -245,12 +245,15 @@ def test_friction_holds_the_part_frictionless_pads_slip(tmp_path):
 @pytest.mark.slow
 def test_planner_ground_truth_plan_succeeds_in_sim(stapler, tmp_path):
     """The planner's plan from the studio's ground-truth trajectory and true object pose (the
-    full search: grasp sampling, LM, collision checks, approach) succeeds in simulation."""
+    full search: grasp sampling, LM, collision checks, approach) succeeds in simulation, with the
+    demo's strict check (pads touch only the grasped part, 3 mm margin). With pads allowed 10 mm
+    into the other parts (``hand_tolerance`` 0.01) the plan still succeeds but pushes the base
+    14.8 mm."""
     from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
 
     inp = studio_plan_inputs(stapler)
     cfg = PlanConfig(num_keyframes=8, approach_steps=4, chunk_size=64, max_iterations=40, approach_candidates=4,
-                     hand_tolerance=0.01, parts=(1,))  # fmt: skip
+                     collision_margin=0.003, parts=(1,))  # fmt: skip
     plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands, config=cfg)
     assert plan.success, plan.message
     save_plan(plan, tmp_path / "plan")
