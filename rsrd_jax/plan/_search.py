@@ -767,7 +767,7 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
             for a, k, i, g in c["arms"]:
                 grip[m, a] = min(float(g.width[i]) / 2 + cfg.approach_clearance, open_grip)
     # The last waypoint reaches the same TCP pose as the trajectory's first keyframe, possibly
-    # elsewhere in the arm's null space; it is replaced by that keyframe (gap recorded) before the
+    # elsewhere in the arm's null space; it is replaced by that keyframe (last step recorded) before the
     # segment is checked, so the check sees the configuration the robot will take (with open
     # fingers here).
     q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
@@ -797,7 +797,6 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         width[a] = float(g.width[i])
     mins = np.minimum(c["mins"], b.mins[m])
     q_app = np.asarray(b.q[m], float)
-    q_app[-1] = np.asarray(c["q"][0], float)
     q_app[:, 14:16] = grip[m]  # the finger opening of the approach (the simulator uses it)
     att["approach_last_step_rad"] = float(end_gap[m])
     return dict(

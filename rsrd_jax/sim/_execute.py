@@ -406,7 +406,7 @@ def simulate_plan(
     run = _Runner(scene, plan, cfg, video, pbar)
     run.grip = open_q.copy()
     try:
-        # settle, transit to pre-grasp (from home only), approach with open grippers
+        # settle, transit to pre-grasp (from home only), approach with the plan's finger opening
         run.phase = 0
         run.hold(q_start, cfg.settle_time)
         run.phase = 1
