@@ -1,5 +1,5 @@
-"""Object pose initialisation: feature matching -> ray -> distance prior -> vmapped multi-seed
-optimisation. Serves the demo's first frame (relative mono-depth) and robot-view registration
+"""Object pose initialisation: the object's region on the frame (feature contrast) -> ray and
+distance prior -> vmapped multi-seed optimisation. Serves the demo's first frame (relative mono-depth) and robot-view registration
 (metric depth)."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 import optax
+from scipy import ndimage
 from jaxtyping import Array, Float
 
 from ..splat import RenderConfig, choose_config, rest_part_poses, apply_part_poses
@@ -31,15 +32,93 @@ def seed_rotations(yaw_seeds: int, altitudes_deg) -> Float[Array, "s 3 3"]:
     return jnp.asarray(np.stack(out), jnp.float32)
 
 
-def mutual_nn_pixels(g_feats: np.ndarray, f_feats: np.ndarray, f_uv: np.ndarray) -> np.ndarray:
-    """Pixels of frame features that are mutual nearest neighbours (cosine) of Gaussian features."""
-    a = g_feats / (np.linalg.norm(g_feats, axis=1, keepdims=True) + 1e-8)
-    b = f_feats / (np.linalg.norm(f_feats, axis=1, keepdims=True) + 1e-8)
-    sim = a @ b.T
-    nn_ab = sim.argmax(1)
-    nn_ba = sim.argmax(0)
-    mutual = nn_ba[nn_ab] == np.arange(len(a))
-    return f_uv[nn_ab[mutual]]
+def locate_object(
+    features: np.ndarray,
+    inside: np.ndarray,
+    occluded: np.ndarray,
+    object_features: np.ndarray,
+    fraction: float = 0.5,
+    occluded_weight: float = 0.5,
+    top_k: int = 20,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Finds the object on a feature map by its contrast with the rest of the frame.
+
+    A cell's score is its mean cosine similarity to its `top_k` most similar object features
+    minus that to its `top_k` most similar background cells (cells away from the ones most like
+    the object). A textured table then scores low however much it resembles some object feature,
+    and the object scores high. Occluded cells (hands) count at `occluded_weight`: a hand over a
+    small object can cover all of it on the first frame. The object is the connected region of
+    cells scoring above `fraction` of the smoothed peak that holds (or is nearest to) the peak.
+
+    Args:
+        features: g×g×d frame features.
+        inside: g×g cells that lie inside the frame.
+        occluded: g×g cells covered by an occluder.
+        object_features: n×d decoded object features.
+        fraction: threshold, relative to the smoothed peak score.
+        occluded_weight: factor on the scores of occluded cells.
+        top_k: neighbours averaged on each side.
+
+    Returns:
+        (g×g non-negative score map, g×g bool mask of the object's region).
+    """
+    g = features.shape[0]
+    inside = ndimage.binary_erosion(inside, iterations=1, border_value=0)  # edge cells see the padding
+    if inside.sum() < 9:
+        raise ValueError(f"locate_object: only {int(inside.sum())} feature cells lie inside the frame")
+    f = features.reshape(g * g, -1)
+    b = f / (np.linalg.norm(f, axis=1, keepdims=True) + 1e-8)
+    a = object_features / (np.linalg.norm(object_features, axis=1, keepdims=True) + 1e-8)
+    k = min(top_k, len(a))
+    s_obj = np.sort(a @ b.T, axis=0)[-k:].mean(0).reshape(g, g)
+    like = ndimage.binary_dilation(s_obj > np.percentile(s_obj[inside], 90), iterations=2)
+    bg = inside & ~like
+    if bg.sum() < k:
+        bg = inside
+    s_bg = np.sort(b @ b[bg.reshape(-1)].T, axis=1)[:, -min(k, int(bg.sum())):].mean(1).reshape(g, g)
+    score = s_obj - s_bg
+    score = np.where(inside, np.maximum(score - np.median(score[inside]), 0.0), 0.0)
+    score = score * np.where(occluded, occluded_weight, 1.0)
+    smooth = ndimage.uniform_filter(score, 3)
+    peak = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+    labels, _ = ndimage.label(score > fraction * smooth[peak], np.ones((3, 3)))
+    if labels[peak] == 0:
+        near = ndimage.distance_transform_edt(labels == 0, return_indices=True)[1]
+        peak = (int(near[0][peak]), int(near[1][peak]))
+    return score, labels == labels[peak]
+
+
+def region_centre_and_area(score: np.ndarray, region: np.ndarray, box) -> tuple[np.ndarray, float]:
+    """Score-weighted centre (pixels) and area (pixels²) of `locate_object`'s region on the
+    feature grid of `box` (x0, y0, side). Boundary cells count half: they are partly covered,
+    the region being dilated by the features' receptive field. Measured on the 11 studio demos'
+    first frames, the distance this area implies is 0.81–1.56× the true one (median 0.94; 0.67–1.30×,
+    median 0.83, with whole boundary cells)."""
+    g = score.shape[0]
+    x0, y0, side = box
+    cell = side / g
+    ii, jj = np.nonzero(region)
+    w = score[region] + 1e-9
+    uv = np.array([x0 + (np.sum(w * jj) / w.sum() + 0.5) * cell, y0 + (np.sum(w * ii) / w.sum() + 0.5) * cell])
+    boundary = region & ~ndimage.binary_erosion(region)
+    return uv, (float(region.sum()) - 0.5 * float(boundary.sum())) * cell * cell
+
+
+def silhouette_area(points: np.ndarray, rotations: np.ndarray, cells: int = 50) -> float:
+    """Mean area (m²) of the orthographic silhouette of `points` seen along the rotations'
+    camera axes: occupancy of a grid of `cells` cells across the points' 90th-percentile
+    diameter, closed and hole-filled."""
+    c = points.mean(0)
+    h = 2.0 * float(np.percentile(np.linalg.norm(points - c, axis=1), 90)) / cells
+    areas = []
+    for R in rotations:
+        ij = np.floor(((points - c) @ R.T)[:, :2] / h).astype(int)
+        ij -= ij.min(0) - 3  # a 3-cell margin: the closing's erosion treats the border as empty
+        occ = np.zeros(ij.max(0) + 4, bool)
+        occ[ij[:, 0], ij[:, 1]] = True
+        occ = ndimage.binary_fill_holes(ndimage.binary_closing(occ, iterations=2))
+        areas.append(occ.sum() * h * h)
+    return float(np.mean(areas))
 
 
 def centred(T_seed: jaxlie.SE3, delta: Float[Array, "6"], c: Float[Array, "3"]) -> jaxlie.SE3:
@@ -53,7 +132,7 @@ class InitResult(eqx.Module):
     seed_losses: Float[Array, " s"]
     best_seed: int = eqx.field(static=True)
     distance_m: float = eqx.field(static=True)
-    num_matches: int = eqx.field(static=True)
+    region_cells: int = eqx.field(static=True)
 
 
 def _pose_objective(tm, T_cam_obj, obs: FrameObs, config, metric_depth, depth_weight):
@@ -105,15 +184,6 @@ def _optimise_seeds(tm, T_seeds: jaxlie.SE3, c, obs, lrs, config, metric_depth, 
     return jax.vmap(one)(T_seeds)
 
 
-def estimate_distance(uv: np.ndarray, fx: float, radius: float) -> float:
-    """Distance at which an object of `radius` spans the matched pixels' extent."""
-    if len(uv) < 4:
-        return 8.0 * radius
-    ext = np.percentile(uv, 90, axis=0) - np.percentile(uv, 10, axis=0)
-    ext_px = max(float(ext.max()), 8.0)
-    return float(np.clip(fx * 1.6 * radius / ext_px, 2.0 * radius, 60.0 * radius))
-
-
 def initialize_pose(
     tm: TrackModel,
     observe,
@@ -140,56 +210,61 @@ def initialize_pose(
     Returns:
         (InitResult, info dict with timings-free diagnostics).
     """
-    from ._observe import crop
+    import cv2
+
+    from ..geometry import crop
 
     obs = observe(full_box)
     g = obs.features.shape[0]
     x0, y0, s = full_box
-    jj, ii = np.meshgrid(np.arange(g), np.arange(g))
-    uv_cells = np.stack([x0 + (jj + 0.5) * s / g, y0 + (ii + 0.5) * s / g], -1).reshape(-1, 2)
-    w = np.asarray(obs.weight).reshape(-1) > 0
-    feats = np.asarray(obs.features).reshape(g * g, -1)
+    inside = crop(np.ones(frame.shape[:2], np.float32), full_box, g, cv2.INTER_AREA) > 0.99
+    occluded = inside & (np.asarray(obs.weight) <= 0)
     rng = np.random.default_rng(0)
     n = tm.gaussians.num_gaussians
     pick = rng.choice(n, min(cfg.match_gaussians, n), replace=False)
     gf = np.asarray(jax.vmap(tm.decoder)(tm.gaussians.features[pick, : tm.num_features]))
-    # drop frame cells that look like the background: they cannot match the object
-    bg = np.asarray(obs.bg_feature)
-    fg = w & (np.linalg.norm(feats - bg, axis=1) > np.percentile(np.linalg.norm(feats - bg, axis=1), 50))
-    uv = mutual_nn_pixels(gf, feats[fg], uv_cells[fg])
-    if len(uv) == 0:
-        uv = uv_cells[fg] if fg.any() else uv_cells
-    u, v = np.median(uv, axis=0)
+    score, region = locate_object(np.asarray(obs.features), inside, occluded, gf, cfg.locate_fraction, cfg.occluded_weight)
+    (u, v), area_px = region_centre_and_area(score, region, full_box)
     means = np.asarray(tm.gaussians.means)
     c = means.mean(0)
     radius = float(np.percentile(np.linalg.norm(means - c, axis=1), 90))
+    R = np.asarray(seed_rotations(cfg.yaw_seeds, cfg.altitudes_deg))
     ray = np.array([(u - float(K.cx)) / float(K.fx), (v - float(K.cy)) / float(K.fy), 1.0])
+    # distance at which the model's mean silhouette (over the seed views) covers the region
+    dist_area = float(np.clip(float(K.fx) * np.sqrt(silhouette_area(means, R) / area_px), 2.0 * radius, 60.0 * radius))
     if cfg.distance_m is not None:
         dist = float(cfg.distance_m)
     elif metric_depth_full is not None:
-        d = metric_depth_full[np.clip(uv[:, 1].astype(int), 0, frame.shape[0] - 1), np.clip(uv[:, 0].astype(int), 0, frame.shape[1] - 1)]
+        ii, jj = np.nonzero(region)
+        cell = s / g
+        cu = np.clip((x0 + (jj + 0.5) * cell).astype(int), 0, frame.shape[1] - 1)
+        cv_ = np.clip((y0 + (ii + 0.5) * cell).astype(int), 0, frame.shape[0] - 1)
+        d = metric_depth_full[cv_, cu]
         d = d[d > 0]
-        dist = float(np.median(d)) + 0.5 * radius if len(d) else estimate_distance(uv, float(K.fx), radius)
+        dist = float(np.median(d)) + 0.5 * radius if len(d) else dist_area
     else:
-        dist = estimate_distance(uv, float(K.fx), radius)
-    p_cam = ray / np.linalg.norm(ray) * dist
-    R = np.asarray(seed_rotations(cfg.yaw_seeds, cfg.altitudes_deg))
-    t = p_cam[None] - np.einsum("sij,j->si", R, c)
-    T_seeds = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t, jnp.float32))
+        dist = dist_area
+    ray = ray / np.linalg.norm(ray)
+
+    def seeds_at(d: float) -> jaxlie.SE3:
+        t = (ray * d)[None] - np.einsum("sij,j->si", R, c)
+        return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t, jnp.float32))
 
     def render_config(T_list, intr):
         posed = apply_part_poses(tm.gaussians, rest_part_poses(tm.part_centroids), tm.part_centroids)
         cams = [Camera(intr, jaxlie.SE3(T)) for T in T_list]
         return choose_config(posed, cams, headroom=1.5)
 
-    # optimise the seeds on a crop around the matched region (the object fills it, unlike the
-    # whole frame), sized for the object's apparent extent at the prior distance
-    side_px = 2.0 * radius * float(K.fx) / dist * 1.6
-    seed_box = (float(u) - side_px / 2, float(v) - side_px / 2, side_px)
-    obs_s = observe(seed_box)
-    md = None
-    if metric_depth_full is not None:
-        md = jnp.asarray(crop(metric_depth_full.astype(np.float32), seed_box, g, 0))  # nearest
+    def seed_crop(d: float):
+        # a crop around the located region (the object fills it, unlike the whole frame), sized
+        # for the object's apparent extent at distance d
+        side_px = 2.0 * radius * float(K.fx) / d * 1.6
+        box = (float(u) - side_px / 2, float(v) - side_px / 2, side_px)
+        md = None if metric_depth_full is None else jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0))  # nearest
+        return observe(box), md
+
+    T_seeds = seeds_at(dist)
+    obs_s, md = seed_crop(dist)
     cfg_full = render_config([T_seeds.wxyz_xyz[i] for i in range(0, len(R), max(1, len(R) // 4))], obs_s.intrinsics)
     lrs = lr_schedule(cfg.lr_start, cfg.lr_end, cfg.iters)
     c32 = jnp.asarray(c, jnp.float32)
@@ -213,9 +288,9 @@ def initialize_pose(
     cfg_roi = render_config([T_best.wxyz_xyz], obs_roi.intrinsics)
     lrs2 = lr_schedule(cfg.lr_end, cfg.lr_end * 0.5, cfg.refine_iters)
     Ts2, losses2 = _optimise_seeds(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), c32, obs_roi, lrs2, cfg_roi, md_roi, cfg.depth_weight)
-    res = InitResult(jaxlie.SE3(Ts2[0]), losses, best, dist, int(len(uv)))
+    res = InitResult(jaxlie.SE3(Ts2[0]), losses, best, dist, int(region.sum()))
     info = {"seed_losses": np.asarray(losses).tolist(), "screen_iters": int(n_screen),
             "survivors": [int(i) for i in survivors], "survivor_losses": np.asarray(final_losses).tolist(),
-            "best_seed": best, "distance_prior_m": dist,
-            "matches": int(len(uv)), "refined_loss": float(losses2[0]), "match_pixel": [float(u), float(v)]}  # fmt: skip
+            "best_seed": best, "distance_prior_m": dist, "distance_area_m": dist_area,
+            "region_cells": int(region.sum()), "refined_loss": float(losses2[0]), "object_pixel": [float(u), float(v)]}  # fmt: skip
     return res, info
