@@ -326,7 +326,8 @@ def solve_frame(
     keys = jax.random.split(key, lrs.shape[0] + 1)
     (delta, _), losses = jax.lax.scan(step, (delta0, opt.init(delta0)), (lrs, keys[1:]))
     T = compose_update(T_init, delta, tm.part_pivots)
-    _, aux = frame_objective(tm, T, T_cam_obj, obs, w, keys[0], config, num_pairs)
+    final, aux = frame_objective(tm, T, T_cam_obj, obs, w, keys[0], config, num_pairs)
+    aux["loss"] = final
     aux["loss_curve"] = losses
     return T, aux
 
