@@ -117,8 +117,8 @@ class InitConfig(eqx.Module):
     """Camera elevation hypotheses (degrees above the object's horizontal plane); each yaw seed is
     tried at each altitude."""
     distance_m: float | None = None
-    """Camera-to-object distance prior; None: estimated from the located region's image area
-    (or from metric depth when given)."""
+    """Camera-to-object distance prior; None: per seed, from the located region's image area and
+    the seed view's silhouette (or from metric depth when given)."""
     iters: int = 80
     """Adam iterations of a seed that is optimised to the end (seeds in parallel under vmap)."""
     screen_iters: int = 30
@@ -138,8 +138,8 @@ class InitConfig(eqx.Module):
     """Gaussians whose decoded features locate the object on the frame (`locate_object`)."""
     locate_fraction: float = 0.5
     """The object's region on the first frame: connected cells whose contrast score exceeds this
-    fraction of the smoothed peak (`locate_object`). Its centre gives the ray, its area the
-    distance prior (the model's mean silhouette over the seed views covering it)."""
+    fraction of the smoothed peak (`locate_object`). Its centre gives the ray, its area each
+    seed's distance (where the model's silhouette seen from that seed covers it)."""
     occluded_weight: float = 0.5
     """Factor on the contrast score of occluded (hand) cells when locating the object: a hand
     can cover all of a small object on the first frame (studio usb_plug)."""

@@ -1,6 +1,6 @@
 """Object pose initialisation: the object's region on the frame (feature contrast) -> ray and
-distance prior -> vmapped multi-seed optimisation. Serves the demo's first frame (relative mono-depth) and robot-view registration
-(metric depth)."""
+per-seed distance -> vmapped multi-seed optimisation. Serves the demo's first frame (relative
+mono-depth) and robot-view registration (metric depth)."""
 
 from __future__ import annotations
 
@@ -92,8 +92,9 @@ def region_centre_and_area(score: np.ndarray, region: np.ndarray, box) -> tuple[
     """Score-weighted centre (pixels) and area (pixels²) of `locate_object`'s region on the
     feature grid of `box` (x0, y0, side). Boundary cells count half: they are partly covered,
     the region being dilated by the features' receptive field. Measured on the 11 studio demos'
-    first frames, the distance this area implies is 0.81–1.56× the true one (median 0.94; 0.67–1.30×,
-    median 0.83, with whole boundary cells)."""
+    first frames, the distance this area implies with the model's mean silhouette over the seed
+    views is 0.81–1.56× the true one (median 0.94; 0.67–1.30×, median 0.83, with whole boundary
+    cells)."""
     g = score.shape[0]
     x0, y0, side = box
     cell = side / g
@@ -104,9 +105,9 @@ def region_centre_and_area(score: np.ndarray, region: np.ndarray, box) -> tuple[
     return uv, (float(region.sum()) - 0.5 * float(boundary.sum())) * cell * cell
 
 
-def silhouette_area(points: np.ndarray, rotations: np.ndarray, cells: int = 50) -> float:
-    """Mean area (m²) of the orthographic silhouette of `points` seen along the rotations'
-    camera axes: occupancy of a grid of `cells` cells across the points' 90th-percentile
+def silhouette_areas(points: np.ndarray, rotations: np.ndarray, cells: int = 50) -> np.ndarray:
+    """Area (m²) of the orthographic silhouette of `points` seen along each rotation's camera
+    axis (`R_cam_obj`): occupancy of a grid of `cells` cells across the points' 90th-percentile
     diameter, closed and hole-filled."""
     c = points.mean(0)
     h = 2.0 * float(np.percentile(np.linalg.norm(points - c, axis=1), 90)) / cells
@@ -118,7 +119,7 @@ def silhouette_area(points: np.ndarray, rotations: np.ndarray, cells: int = 50) 
         occ[ij[:, 0], ij[:, 1]] = True
         occ = ndimage.binary_fill_holes(ndimage.binary_closing(occ, iterations=2))
         areas.append(occ.sum() * h * h)
-    return float(np.mean(areas))
+    return np.asarray(areas)
 
 
 def centred(T_seed: jaxlie.SE3, delta: Float[Array, "6"], c: Float[Array, "3"]) -> jaxlie.SE3:
@@ -230,8 +231,10 @@ def initialize_pose(
     radius = float(np.percentile(np.linalg.norm(means - c, axis=1), 90))
     R = np.asarray(seed_rotations(cfg.yaw_seeds, cfg.altitudes_deg))
     ray = np.array([(u - float(K.cx)) / float(K.fx), (v - float(K.cy)) / float(K.fy), 1.0])
-    # distance at which the model's mean silhouette (over the seed views) covers the region
-    dist_area = float(np.clip(float(K.fx) * np.sqrt(silhouette_area(means, R) / area_px), 2.0 * radius, 60.0 * radius))
+    # each seed's distance: where the model's silhouette seen from that seed covers the region
+    # (an elongated object's silhouette area changes ~2× with yaw)
+    seed_dist = np.clip(float(K.fx) * np.sqrt(silhouette_areas(means, R) / area_px), 2.0 * radius, 60.0 * radius)
+    dist_area = float(np.median(seed_dist))
     if cfg.distance_m is not None:
         dist = float(cfg.distance_m)
     elif metric_depth_full is not None:
@@ -246,8 +249,8 @@ def initialize_pose(
         dist = dist_area
     ray = ray / np.linalg.norm(ray)
 
-    def seeds_at(d: float) -> jaxlie.SE3:
-        t = (ray * d)[None] - np.einsum("sij,j->si", R, c)
+    def seeds_at(d) -> jaxlie.SE3:
+        t = ray[None] * np.reshape(d, (-1, 1)) - np.einsum("sij,j->si", R, c)
         return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t, jnp.float32))
 
     def render_config(T_list, intr):
@@ -263,9 +266,10 @@ def initialize_pose(
         md = None if metric_depth_full is None else jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0))  # nearest
         return observe(box), md
 
-    T_seeds = seeds_at(dist)
+    T_seeds = seeds_at(seed_dist if cfg.distance_m is None and metric_depth_full is None else dist)
     obs_s, md = seed_crop(dist)
-    cfg_full = render_config([T_seeds.wxyz_xyz[i] for i in range(0, len(R), max(1, len(R) // 4))], obs_s.intrinsics)
+    some = sorted(set(range(0, len(R), max(1, len(R) // 4))) | {int(np.argmin(seed_dist))})  # incl. the nearest
+    cfg_full = render_config([T_seeds.wxyz_xyz[i] for i in some], obs_s.intrinsics)
     lrs = lr_schedule(cfg.lr_start, cfg.lr_end, cfg.iters)
     c32 = jnp.asarray(c, jnp.float32)
     n_screen = cfg.screen_iters if 0 < cfg.screen_iters < cfg.iters else cfg.iters
@@ -291,6 +295,6 @@ def initialize_pose(
     res = InitResult(jaxlie.SE3(Ts2[0]), losses, best, dist, int(region.sum()))
     info = {"seed_losses": np.asarray(losses).tolist(), "screen_iters": int(n_screen),
             "survivors": [int(i) for i in survivors], "survivor_losses": np.asarray(final_losses).tolist(),
-            "best_seed": best, "distance_prior_m": dist, "distance_area_m": dist_area,
+            "best_seed": best, "distance_prior_m": dist, "seed_distances_m": np.round(seed_dist, 4).tolist(),
             "region_cells": int(region.sum()), "refined_loss": float(losses2[0]), "object_pixel": [float(u), float(v)]}  # fmt: skip
     return res, info
