@@ -184,7 +184,7 @@ def cmd_track(a: argparse.Namespace) -> int:
     weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb)
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
-                      velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
+                      slides=not a.no_slides, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
     traj = track_video(model, demo, cfg, init, occluder, mono)
     save_trajectory(traj, out)
@@ -411,6 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--w-touch", type=float, default=0.0, help="as-touching loss weight (sliding contacts allowed)")
     tr.add_argument("--joints", action="store_true",
                     help="joint discovery: a first pass on the contact band, then parts tied at fitted joint points (2× time)")
+    tr.add_argument("--no-slides", action="store_true",
+                    help="with --joints: no slide hypotheses (a part on a slide candidate is tracked only with its joint point)")
     tr.add_argument("--velocity-hypothesis", type=float, default=None,
                     help="a second start per frame extrapolated with this velocity factor (e.g. 1.0); the lower loss wins (2× time)")
     tr.add_argument("--w-rgb", type=float, default=0.05, help="photometric L1 weight")

@@ -6,7 +6,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, seed_rotations
+from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations
 
 
 def test_barron_special_cases():
@@ -198,6 +198,34 @@ def test_fit_joint_point_recovers_a_hinge_axis_and_refuses_a_slide():
     assert fit_joint_point(slide, cents, 1, 0, x0, 5.0) is None
 
 
+
+def test_slide_candidates_and_axes():
+    """A part translated along its length without turning is a slide candidate (no joint point);
+    a hinge whose fitted point lies at the contact is not, one whose point lies far from it is;
+    a part that stayed put is not. The candidate axes are the part's principal axes, longest
+    first (checked against a box of known sides)."""
+    from rsrd_jax.track._joints import fit_joint_point, is_slide_candidate, slide_axes
+
+    rng = np.random.default_rng(1)
+    cents = np.array([[0.0, 0.0, 0.02], [0.05, 0.01, 0.06]])
+    F = 20
+    still = np.tile(np.concatenate([[1.0, 0, 0, 0], cents[0]]), (F, 1))
+    slide = np.stack([still, np.tile(np.concatenate([[1.0, 0, 0, 0], cents[1]]), (F, 1))], 1)
+    slide[:, 1, 4:] += np.linspace(0, 0.03, F)[:, None] * np.array([1.0, 0, 0])
+    contact = np.array([0.03, 0.0, 0.05])
+    assert fit_joint_point(slide, cents, 1, 0, contact, 5.0) is None
+    assert is_slide_candidate(slide, cents, None, contact, 1, 0, 0.02, 0.005, 0.5)
+    assert not is_slide_candidate(slide[:3], cents, None, contact, 1, 0, 0.02, 0.005, 0.5)  # moved 3 mm
+    X = np.array([0.035, 0.0, 0.05])
+    T = _hinge_trajectory(X, np.array([0.0, 1.0, 0.0]), np.linspace(0, np.deg2rad(40), F), cents, np.zeros((F, 6)))
+    got = fit_joint_point(T, cents, 1, 0, contact, 5.0)
+    assert not is_slide_candidate(T, cents, got, contact, 1, 0, 0.02, 0.005, 0.5)
+    assert is_slide_candidate(T, cents, got, contact + [0.0, 0.0, 0.015], 1, 0, 0.02, 0.005, 0.5)
+    box = rng.uniform(-1, 1, (2000, 3)) * [0.04, 0.01, 0.02]
+    R = np.asarray(jaxlie.SO3.from_rpy_radians(0.3, -0.5, 1.1).as_matrix())
+    axes = slide_axes(box @ R.T + [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(np.abs(axes @ R), np.eye(3)[[0, 2, 1]], atol=0.05)
+
 def test_contact_band_pairs_match_brute_force_and_joint_slots_are_invisible(rng):
     import equinox as eqx
 
@@ -237,3 +265,34 @@ def test_contact_band_pairs_match_brute_force_and_joint_slots_are_invisible(rng)
     cam = Camera(Intrinsics.create(80.0, 80.0, 24.0, 24.0, 48, 48), look_at(np.array([0.02, -0.08, 0.06]), np.array([0.02, 0.015, 0.01])))
     cfg = choose_config(jm.gaussians, cam)
     np.testing.assert_allclose(np.asarray(render(jm.gaussians, cam, cfg).rgb), np.asarray(render(g, cam, cfg).rgb), atol=1e-6)
+
+
+def test_prismatic_loss_allows_only_the_slide():
+    """Two parts, part 1 on a slide along x relative to part 0: zero at rest, for a rigid motion
+    of the whole object and for any slide along the axis (also with both parts moved); Barron's
+    closed form (α = 1) of an orthogonal offset and of a turn; the gradient equals central finite
+    differences."""
+    c = jnp.asarray([[0.0, 0.0, 0.0], [0.03, 0.01, 0.02]])
+    rest = jaxlie.SE3.from_translation(c)
+    parts, axes = jnp.asarray([[1, 0]]), jnp.asarray([[1.0, 0.0, 0.0]])
+    lengths, w, cs = jnp.asarray([0.02]), jnp.ones(1), 0.001
+    loss = lambda T: float(prismatic_loss(T, c, parts, axes, lengths, w, 1.0, cs))  # noqa: E731
+    slid = lambda d: jaxlie.SE3(rest.wxyz_xyz.at[1, 4:].add(jnp.asarray(d)))  # noqa: E731
+    assert loss(rest) == pytest.approx(0.0, abs=1e-6)
+    assert loss(slid([0.04, 0, 0])) == pytest.approx(0.0, abs=1e-6)
+    G = jaxlie.SE3.exp(jnp.array([0.05, -0.02, 0.1, 0.3, -0.2, 0.5]))
+    moved = jaxlie.SE3(jnp.stack([(G @ jaxlie.SE3(T)).wxyz_xyz for T in slid([-0.03, 0, 0]).wxyz_xyz]))
+    assert loss(moved) == pytest.approx(0.0, abs=2e-3)  # float32 rounding of a metre-scale pose
+    # an orthogonal offset of 5 mm: sqrt((d/c)^2 + 1) - 1
+    assert loss(slid([0.02, 0.0, 0.005])) == pytest.approx(np.sqrt(25 + 1) - 1, rel=1e-3)
+    # a 0.1 rad turn of the slider about its centroid: the angle times its length
+    turned = jaxlie.SE3(rest.wxyz_xyz.at[1, :4].set(jaxlie.SO3.from_z_radians(0.1).wxyz))
+    assert loss(turned) == pytest.approx(np.sqrt((0.1 * 0.02 / cs) ** 2 + 1) - 1, rel=1e-3)
+    # gradient against central differences in the tangent of part 1
+    T0 = slid([0.01, 0.003, -0.002])
+    f = lambda d: prismatic_loss(jaxlie.SE3(T0.wxyz_xyz.at[1].set((jaxlie.SE3(T0.wxyz_xyz[1]) @ jaxlie.SE3.exp(d)).wxyz_xyz)),
+                                 c, parts, axes, lengths, w, 1.0, cs)  # noqa: E731  # fmt: skip
+    g = np.asarray(jax.grad(f)(jnp.zeros(6)))
+    h = 1e-4
+    fd = [(float(f(h * e)) - float(f(-h * e))) / (2 * h) for e in np.eye(6, dtype=np.float32)]
+    np.testing.assert_allclose(g, fd, rtol=2e-2, atol=2e-2)

@@ -24,6 +24,7 @@ from ._losses import (
     depth_ranking_loss as depth_ranking_loss,
     feature_loss as feature_loss,
     pose_smoothness as pose_smoothness,
+    prismatic_loss as prismatic_loss,
 )
 from ._observe import (
     MonoDepthSource as MonoDepthSource,

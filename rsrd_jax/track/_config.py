@@ -70,6 +70,22 @@ class TrackConfig(eqx.Module):
     with 25 steps instead lost red_box: 12.8 / 18.8 mm.)"""
     joint_min_angle_deg: float = 5.0
     """Smallest rotation relative to the neighbour part for which a joint point is fitted."""
+    slides: bool = True
+    """With `joints`: slide hypotheses. A part that moved relative to its neighbour in the first
+    pass by more than `slide_min_m` and either did not turn or got a joint point far from the
+    contact (`slide_point_ratio`) is tracked again in the second pass tied to its neighbour by a
+    slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
+    principal axes; the hypothesis (joint point or one of the slides) with the lowest data loss
+    summed over the frames wins. Costs up to three more second passes per candidate part."""
+    slide_point_ratio: float = 0.5
+    """A fitted joint point farther than this × the part's radius from the contact makes the
+    part a slide candidate."""
+    slide_velocity: float | None = 1.0
+    """`velocity_hypothesis` of the second pass (all its hypotheses) when there are slide
+    candidates (None: `velocity_hypothesis`). Measured on nerf_gun with the true slide axis:
+    slide ADD 11.9 mm with one start, 3.3 mm with 1.0."""
+    slide_min_m: float = 0.005
+    """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
     velocity_factor: float = 0.2
     """Initial guess of a frame: previous pose composed with this fraction of the last motion."""
     velocity_hypothesis: float | None = None

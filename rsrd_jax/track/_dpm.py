@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, touch_loss
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -53,6 +53,14 @@ class TrackModel(eqx.Module):
     """Ordered part pair (q → r) of each contact Gaussian."""
     touch_pairs: Int[Array, "u 2"]
     """The two directions of each touching part pair (the term takes the smaller of the two)."""
+    slide_parts: Int[Array, "q 2"]
+    """Slide joints of the prismatic term (`prismatic_loss`): (part, neighbour) per joint."""
+    slide_axes: Float[Array, "q 3"]
+    """Unit slide direction of each joint (object frame at rest)."""
+    slide_lengths: Float[Array, " q"]
+    """Radius of each sliding part (metres; converts its rotation residual to a length)."""
+    slide_weight: Float[Array, " q"]
+    """Weight of each slide joint (one zero-weight dummy entry when there are none)."""
     num_features: int = eqx.field(static=True)
     num_parts: int = eqx.field(static=True)
 
@@ -109,6 +117,10 @@ class TrackModel(eqx.Module):
             touch_weight=jnp.asarray(touch[3], jnp.float32),
             touch_direction=jnp.asarray(touch[4], jnp.int32),
             touch_pairs=jnp.asarray(touch[5], jnp.int32),
+            slide_parts=jnp.zeros((1, 2), jnp.int32),
+            slide_axes=jnp.asarray([[1.0, 0.0, 0.0]], jnp.float32),
+            slide_lengths=jnp.zeros(1, jnp.float32),
+            slide_weight=jnp.zeros(1, jnp.float32),
             num_features=int(g.num_features),
             num_parts=P,
         )
@@ -276,13 +288,15 @@ def frame_objective(
     l_arap = arap_loss(r.means, tm.gaussians.means, tm.arap_pairs, tm.arap_weight, w.arap_alpha, w.arap_scale)
     l_touch = touch_loss(r.means, tm.touch_points, tm.touch_candidates, tm.touch_rest, tm.touch_weight,
                          tm.touch_direction, tm.touch_pairs, w.arap_alpha, w.arap_scale)  # fmt: skip
-    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * l_arap + w.touch * l_touch
+    l_slide = prismatic_loss(T_obj_part, tm.part_centroids, tm.slide_parts, tm.slide_axes, tm.slide_lengths,
+                             tm.slide_weight, w.arap_alpha, w.arap_scale)  # fmt: skip
+    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide) + w.touch * l_touch
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
 
 

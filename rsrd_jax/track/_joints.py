@@ -12,6 +12,8 @@ fixes the joint (fitted point within 3–6 mm of the true hinge axis on the stap
 
 from __future__ import annotations
 
+import copy
+
 import equinox as eqx
 import jax.numpy as jnp
 import jaxlie
@@ -81,7 +83,12 @@ def with_joint_slots(model, radius: float, near: float):
         fields = ("means", "quats", "log_scales", "opacity_logits", "colours", "features", "part_ids")
         g = type(g)(*[jnp.concatenate([getattr(g, f), jnp.asarray(extra[f], getattr(g, f).dtype)]) for f in fields])
     pairs = np.concatenate([band, np.arange(n, n + m).reshape(-1, 2)]) if m else band
-    model = eqx.tree_at(lambda x: (x.gaussians, x.arap_pairs), model, (g, jnp.asarray(pairs, jnp.int32).reshape(-1, 2)))
+    new = (g, jnp.asarray(pairs, jnp.int32).reshape(-1, 2))
+    if isinstance(model, eqx.Module):
+        model = eqx.tree_at(lambda x: (x.gaussians, x.arap_pairs), model, new)
+    else:  # any object with these attributes (e.g. a namespace built in tests)
+        model = copy.copy(model)
+        model.gaussians, model.arap_pairs = new
     return model, neighbour
 
 
@@ -121,3 +128,33 @@ def fit_joint_point(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: i
     b = (np.einsum("fij,j->fi", Rk, centroids[k]) - np.einsum("fij,j->fi", Rn, centroids[nb]) + tn - tk).reshape(-1)
     lam = reg * max(float(np.trace(A.T @ A)) / 3, 1e-12)
     return np.linalg.solve(A.T @ A + lam * np.eye(3), A.T @ b + lam * np.asarray(x0, np.float64))
+
+
+
+def relative_displacement(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int) -> np.ndarray:
+    """F×3: part k's centroid relative to part `nb`, in `nb`'s frame (object axes at rest), minus
+    its rest offset."""
+    T = np.asarray(jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32)).as_matrix(), np.float64)
+    t = np.einsum("fji,fj->fi", T[:, nb, :3, :3], T[:, k, :3, 3] - T[:, nb, :3, 3])
+    return t - (centroids[k] - centroids[nb])
+
+
+def is_slide_candidate(T_obj_part: np.ndarray, centroids: np.ndarray, point: np.ndarray | None, contact: np.ndarray,
+                       k: int, nb: int, radius: float, min_m: float, point_ratio: float) -> bool:  # fmt: skip
+    """Whether part k may be on a slide joint relative to `nb`, from the pass `T_obj_part`
+    (F×P×7): with a fitted joint `point`, when it lies more than `point_ratio` × the part's
+    `radius` from the parts' `contact` (a slide's first pass turns it by a few degrees about a
+    point far from where the parts touch; on the session-7 builds: nerf_gun's slide 0.57,
+    toy_drawer's drawer 0.71, hinges 0.02–0.59); without one (it did not turn), when it moved by
+    more than `min_m`."""
+    if point is not None:
+        return float(np.linalg.norm(np.asarray(point) - contact)) > point_ratio * radius
+    return float(np.linalg.norm(relative_displacement(T_obj_part, centroids, k, nb), axis=1).max()) > min_m
+
+
+def slide_axes(points: np.ndarray) -> np.ndarray:
+    """3×3: candidate slide directions of a part (rows, object frame): its principal axes. A
+    slide's direction is usually one of them (a slide or plug along its length, a drawer along
+    its front panel's normal)."""
+    _, _, Vt = np.linalg.svd(points - points.mean(0), full_matrices=False)
+    return Vt

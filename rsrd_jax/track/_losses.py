@@ -109,6 +109,34 @@ def touch_loss(
     return jnp.sum(jnp.where(valid, lu, 0.0)) / jnp.maximum(jnp.sum(valid), 1)
 
 
+def prismatic_loss(
+    T_obj_part: jaxlie.SE3,
+    centroids: Float[Array, "p 3"],
+    parts: Int[Array, "q 2"],
+    axes: Float[Array, "q 3"],
+    lengths: Float[Array, " q"],
+    weight: Float[Array, " q"],
+    alpha: Float[Array, ""] | float,
+    scale: Float[Array, ""] | float,
+) -> Float[Array, ""]:
+    """Slide joints: part k = parts[i, 0] moves relative to part n = parts[i, 1] only by a
+    translation along `axes[i]` (a unit vector in n's frame, i.e. the object frame at rest).
+
+    With T_rel = T_n⁻¹ T_k (rest: a translation by c_k − c_n), the residuals are the part of
+    T_rel's translation change orthogonal to the axis (metres) and its rotation angle times
+    `lengths[i]` (metres at the part's radius), each through Barron's loss at `scale`. Zero at
+    rest, for any rigid motion of the whole object and for any slide along the axis; weighted
+    mean over the entries."""
+    Tk = jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 0]])
+    Tn = jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 1]])
+    rel = Tn.inverse() @ Tk
+    d = rel.translation() - (centroids[parts[:, 0]] - centroids[parts[:, 1]])
+    perp = d - jnp.sum(d * axes, -1, keepdims=True) * axes
+    ang = jnp.linalg.norm(rel.rotation().log() + 1e-12, axis=-1)
+    per = barron_loss(jnp.linalg.norm(perp + 1e-12, axis=-1), alpha, scale) + barron_loss(ang * lengths, alpha, scale)
+    return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
 def pose_smoothness(T: jaxlie.SE3, valid: Bool[Array, " t"] | None = None) -> Float[Array, ""]:
     """First-difference smoothness over a T×P pose sequence: Σ ‖Δtranslation‖² + ‖Δrotation‖²
     (rotation as the tangent angle vector, squared), averaged over neighbouring frame pairs."""

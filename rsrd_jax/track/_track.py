@@ -17,7 +17,7 @@ from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
-from ._joints import fit_joint_point, joint_slots, with_joint_slots
+from ._joints import fit_joint_point, is_slide_candidate, joint_slots, slide_axes, with_joint_slots
 from ._init import initialize_pose
 from ._observe import model_extractor, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
 
@@ -115,11 +115,11 @@ def track_video(
     key = jax.random.key(config.seed)
 
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
-    switched = [0]  # frames where `velocity_hypothesis`'s start won
 
-    def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs):
+    def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
         T_parts: list[jaxlie.SE3] = []
-        obs_all, residual, visible, losses = [], [], [], []
+        obs_all, residual, visible, losses, data, logged = [], [], [], [], [], []
+        switched = 0  # frames where the second start won
         solve_s: list[float] = []
         bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
         for t in bar:
@@ -131,14 +131,13 @@ def track_video(
             key, sub = jax.random.split(key)
             tf = time.perf_counter()
             T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
-            if config.velocity_hypothesis is not None and prev2 is not None:
+            if vh is not None and prev2 is not None:
                 # a second start (e.g. full constant velocity) on the same observations and pair
                 # sample: the lower final loss wins
-                T2, aux2 = solve_frame(tm, extrapolate(prev, prev2, config.velocity_hypothesis), T_cam_obj, obs, w,
-                                       lrs, sub, rcfg, config.rank_pairs)  # fmt: skip
+                T2, aux2 = solve_frame(tm, extrapolate(prev, prev2, vh), T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
                 if float(aux2["loss"]) < float(aux["loss"]):
                     T, aux = T2, aux2
-                    switched[0] += 1
+                    switched += 1
             T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
             solve_s.append(time.perf_counter() - tf)
             T_parts.append(T)
@@ -146,18 +145,40 @@ def track_video(
             residual.append(np.asarray(aux["part_residual"]))
             visible.append(np.asarray(aux["part_visible"]))
             losses.append(float(aux["loss"]))
+            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"]))
             bar.set_postfix(loss=f"{losses[-1]:.3g}")
             if log is not None and record:
-                log("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux})
+                logged.append(("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux}))
         compile_s[0] += _first_call_excess(solve_s)
-        return T_parts, obs_all, residual, visible, losses, key
+        return T_parts, obs_all, residual, visible, losses, data, (logged, switched), key
 
     t_frames = time.perf_counter()
     joint_info: dict = {}
+    candidates: list = []
     if use_joints:
-        tm, joint_info, key = _discover_joints(tm, neighbour, w, config, key, per_frame_pass)
+        tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass)
         timings["joint_pass_s"] = time.perf_counter() - t_frames
-    T_parts, obs_all, residual, visible, losses, key = per_frame_pass(tm, w, key, "track")
+    vh = config.velocity_hypothesis if not candidates or config.slide_velocity is None else config.slide_velocity
+    key_b = key
+    best = per_frame_pass(tm, w, key_b, "track", vh=vh)
+    if candidates:
+        # slide hypotheses: each candidate part in turn, along each of its axes (the others as
+        # chosen so far); the lowest summed data loss over the frames wins
+        t_h = time.perf_counter()
+        trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best[5]))}]
+        for k, nb, length, axes, pair_mask, slot_pair in candidates:
+            for a in axes:
+                tm_h = _with_slide(tm, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
+                res = per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh)
+                trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res[5]))})
+                if np.sum(res[5]) < np.sum(best[5]):
+                    best, tm = res, tm_h
+                    joint_info[str(k)]["slide_axis"] = trials[-1]["axis"]
+        joint_info["slide_hypotheses"] = trials
+        timings["slide_hypotheses_s"] = time.perf_counter() - t_h
+    T_parts, obs_all, residual, visible, losses, _, (logged, switched), key = best
+    for entry in logged:
+        log(*entry)
     timings["frames_s"] = time.perf_counter() - t_frames
     timings["frame_compile_s"] = compile_s[0]
 
@@ -210,7 +231,7 @@ def track_video(
         "separable": separable,
         "config": _config_dict(config),
         "joints": joint_info,
-        "velocity_hypothesis_frames": switched[0],
+        "velocity_hypothesis_frames": switched,
         "init_config": _config_dict(init),
     }
     return PartTrajectory(
@@ -248,21 +269,49 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     weak = config.joint_first_arap / max(float(config.weights.arap), 1e-12)
     pw = np.where(is_slot, 0.0, weak).astype(np.float32)
     info = {}
+    candidates: list = []
+    slot_gaussian = np.zeros(len(means), bool)
+    slot_gaussian[[x for i, j, _ in slots.values() for x in (i, j)]] = True
     for k, (i, j, p) in slots.items():
         nb = neighbour.get(k)
         X = None if nb is None else fit_joint_point(T_a, cents, k, nb, means[i], config.joint_min_angle_deg)
         info[str(k)] = {"neighbour": nb, "point": None if X is None else [float(v) for v in X]}
+        mine = ((ids[pairs[:, 0]] == k) & (ids[pairs[:, 1]] == nb)) | ((ids[pairs[:, 1]] == k) & (ids[pairs[:, 0]] == nb))
+        part = means[(ids == k) & ~slot_gaussian]
+        radius = float(np.percentile(np.linalg.norm(part - cents[k], axis=1), 90))
+        if nb is not None and config.slides and is_slide_candidate(T_a, cents, X, means[i], k, nb, radius, config.slide_min_m, config.slide_point_ratio):
+            candidates.append((k, nb, radius, slide_axes(part), mine & ~is_slot, p))
         if X is None:
             continue
         means[i] = means[j] = X
         pw[p] = 1.0
-        mine = ((ids[pairs[:, 0]] == k) & (ids[pairs[:, 1]] == nb)) | ((ids[pairs[:, 1]] == k) & (ids[pairs[:, 0]] == nb))
         pw[mine & ~is_slot] = 0.0
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
     piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
                        (g, jnp.asarray(pw), jnp.asarray(use * piv, jnp.float32)))  # fmt: skip
-    return tm_b, info, key
+    return tm_b, info, key, candidates
+
+
+def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask, slot_pair: int, use_pivots: bool) -> TrackModel:
+    """`tm` with part k tied to `nb` by a slide joint along `axis` instead of its joint point or
+    contact band (their ARAP pairs `pair_mask` and `slot_pair` weighted 0)."""
+    pw = np.asarray(tm.arap_weight).copy()
+    pw[pair_mask] = 0.0
+    pw[slot_pair] = 0.0
+    # pivots as `_discover_joints` sets them for these pair weights (k's: its centroid)
+    slot_pairs = [q for _, _, q in joint_slots(tm).values()]
+    P = tm.num_parts
+    piv = contact_pivots(np.asarray(tm.gaussians.means, np.float64), np.asarray(tm.gaussians.part_ids), np.asarray(tm.arap_pairs),
+                         pw, np.asarray(tm.part_centroids, np.float64), P, root_too=P == 2 and bool((pw[slot_pairs] > 0).any()))  # fmt: skip
+    piv = piv if use_pivots else 0 * piv
+    entry = (np.asarray([[k, nb]]), np.asarray([axis]), np.asarray([length]), np.ones(1))
+    old = (np.asarray(tm.slide_parts), np.asarray(tm.slide_axes), np.asarray(tm.slide_lengths), np.asarray(tm.slide_weight))
+    keep = old[3] > 0
+    new = [np.concatenate([o[keep], e]) for o, e in zip(old, entry)]
+    dts = (jnp.int32, jnp.float32, jnp.float32, jnp.float32)
+    return eqx.tree_at(lambda m: (m.arap_weight, m.part_pivots, m.slide_parts, m.slide_axes, m.slide_lengths, m.slide_weight), tm,
+                       (jnp.asarray(pw), jnp.asarray(piv, jnp.float32), *[jnp.asarray(x, dt) for x, dt in zip(new, dts)]))  # fmt: skip
 
 
 def _first_call_excess(times: list[float]) -> float:
