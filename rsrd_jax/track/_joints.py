@@ -8,6 +8,11 @@ rotation (the stapler's 17 contact pairs, 1–10 mm from its axis, hold the arm 
 28.6°), while without pairs nothing keeps the parts together and the base drifts (18 mm). The
 band's pairs at 1/40 of the ARAP weight and a saturating loss let the arm turn, and its motion
 fixes the joint (fitted point within 3–6 mm of the true hinge axis on the stapler).
+
+Slides have no joint point: the first pass turns a slide by a few degrees about a point far from
+the contact, and a second pass tied there tracks a turn (nerf_gun's slide 37 mm off). Such parts
+(`is_slide_candidate`) are re-tracked on a slide joint along each of their principal axes
+(`slide_axes`, `prismatic_loss`); `track_video` keeps the hypothesis with the lowest data loss.
 """
 
 from __future__ import annotations
