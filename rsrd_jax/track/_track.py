@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -20,6 +21,24 @@ from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapola
 from ._joints import fit_joint_point, is_slide_candidate, joint_slots, slide_axes, with_joint_slots
 from ._init import initialize_pose
 from ._observe import model_extractor, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+
+
+class _Pass(NamedTuple):
+    """One per-frame pass over the video."""
+
+    T_parts: list
+    obs: list
+    residual: list
+    visible: list
+    loss: list
+    """Final loss per frame."""
+    data_loss: list
+    """Data terms (feature, rgb, rank) of the final loss per frame: hypotheses compare these."""
+    logged: list
+    """Deferred rerun log entries (emitted for the pass that is kept)."""
+    switched: int
+    """Frames where the second start won."""
+    key: jax.Array
 
 
 def _roi_for(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, K, margin: float):
@@ -150,7 +169,7 @@ def track_video(
             if log is not None and record:
                 logged.append(("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux}))
         compile_s[0] += _first_call_excess(solve_s)
-        return T_parts, obs_all, residual, visible, losses, data, (logged, switched), key
+        return _Pass(T_parts, obs_all, residual, visible, losses, data, logged, switched, key)
 
     t_frames = time.perf_counter()
     joint_info: dict = {}
@@ -165,19 +184,19 @@ def track_video(
         # slide hypotheses: each candidate part in turn, along each of its axes (the others as
         # chosen so far); the lowest summed data loss over the frames wins
         t_h = time.perf_counter()
-        trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best[5]))}]
+        trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
         for k, nb, length, axes, pair_mask, slot_pair in candidates:
             for a in axes:
                 tm_h = _with_slide(tm, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
                 res = per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh)
-                trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res[5]))})
-                if np.sum(res[5]) < np.sum(best[5]):
+                trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
+                if trials[-1]["data_loss"] < np.sum(best.data_loss):
                     best, tm = res, tm_h
                     joint_info[str(k)]["slide_axis"] = trials[-1]["axis"]
         joint_info["slide_hypotheses"] = trials
         timings["slide_hypotheses_s"] = time.perf_counter() - t_h
-    T_parts, obs_all, residual, visible, losses, _, (logged, switched), key = best
-    for entry in logged:
+    T_parts, obs_all, residual, visible, losses, key = best.T_parts, best.obs, best.residual, best.visible, best.loss, best.key
+    for entry in best.logged:
         log(*entry)
     timings["frames_s"] = time.perf_counter() - t_frames
     timings["frame_compile_s"] = compile_s[0]
@@ -231,7 +250,7 @@ def track_video(
         "separable": separable,
         "config": _config_dict(config),
         "joints": joint_info,
-        "velocity_hypothesis_frames": switched,
+        "velocity_hypothesis_frames": best.switched,
         "init_config": _config_dict(init),
     }
     return PartTrajectory(
