@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 
 from rsrd_jax.io import atomic_write_json, atomic_write_text, read_demo, read_demo_gt  # noqa: E402
 from rsrd_jax.parts import BuildConfig, build_object_model, load_object_model, save_object_model  # noqa: E402
-from rsrd_jax.pipeline import PipelineConfig  # noqa: E402
+from rsrd_jax.pipeline import PipelineConfig, studio_separable  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
 from rsrd_jax.track import (  # noqa: E402
     InitConfig,
@@ -71,7 +71,8 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
         for ab in ablations:
             cfg = TrackConfig(**{"smooth_iters": 10 if quick else 30, **ABLATIONS[ab]})
             t0 = time.perf_counter()
-            traj = track_video(model, demo, cfg, InitConfig(), StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"))
+            traj = track_video(model, demo, cfg, InitConfig(), StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),
+                               separable=studio_separable(root))
             m = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"][: traj.num_frames], pts)
             results[name][ab] = {
                 "add_obj_mm": m["mean_add_obj_mm"],

@@ -186,7 +186,7 @@ def cmd_track(a: argparse.Namespace) -> int:
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
                       slides=not a.no_slides, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
-    traj = track_video(model, demo, cfg, init, occluder, mono)
+    traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable)
     save_trajectory(traj, out)
     t = traj.meta["timings_s"]
     print(f"tracked {traj.num_frames} frames × {traj.num_parts} parts -> {out / 'trajectory.npz'}")
@@ -415,6 +415,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --joints: no slide hypotheses (a part on a slide candidate is tracked only with its joint point)")
     tr.add_argument("--velocity-hypothesis", type=float, default=None,
                     help="a second start per frame extrapolated with this velocity factor (e.g. 1.0); the lower loss wins (2× time)")
+    tr.add_argument("--separable", action=argparse.BooleanOptionalAction, default=None,
+                    help="the parts come apart (ARAP α 0.1, no joint discovery) or, with --no-separable, stay "
+                         "attached; default: the model's meta['separable'], else attached")  # fmt: skip
     tr.add_argument("--w-rgb", type=float, default=0.05, help="photometric L1 weight")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--no-video", action="store_true", help="skip the overlay video")

@@ -22,6 +22,7 @@ true pose. Ground truth is only read to score the stages.
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -122,6 +123,19 @@ def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.
     return np.einsum("tij,thkj->thki", T_oc[:, :3, :3], kc) + T_oc[:, None, None, :3, 3]
 
 
+def studio_separable(studio_dir: Path) -> bool:
+    """The studio object's ``separable`` flag (``object.json``): its parts come apart (usb_plug).
+    A scan does not record it, so the pipeline passes it to tracking."""
+    p = Path(studio_dir) / "object.json"
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: studio object.json missing (expected the output of make_object)")
+    with open(p) as f:
+        meta = json.load(f)
+    if not isinstance(meta.get("separable"), bool):
+        raise ValueError(f"{p}: field 'separable' must be true or false, got {meta.get('separable')!r}")
+    return meta["separable"]
+
+
 def _stage(name: str, report: dict, log):
     class _Timer:
         def __enter__(self):
@@ -209,7 +223,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
             tcfg = TrackConfig(steps_per_frame=cfg.track_steps, roi_size=cfg.track_roi, seed=cfg.seed, joints=cfg.track_joints,
                                lr_start=cfg.track_lr_start)  # fmt: skip
             traj = track_video(model, demo, tcfg, InitConfig(iters=cfg.init_iters),
-                               StudioHandMasks(studio_dir / "demo"), StudioDepthOracle(studio_dir / "demo", seed=cfg.seed))  # fmt: skip
+                               StudioHandMasks(studio_dir / "demo"), StudioDepthOracle(studio_dir / "demo", seed=cfg.seed),
+                               separable=studio_separable(studio_dir))  # fmt: skip
             save_trajectory(traj, track_dir)
             if cfg.rerun:
                 from .viz import log_tracking, overlay_frames

@@ -14,6 +14,7 @@ from rsrd_jax.grasp import (
     MeshConfig,
     PartMesh,
     build_part_mesh,
+    merge_grasps,
     sample_antipodal_grasps,
     sample_part_grasps,
 )
@@ -320,3 +321,34 @@ def test_studio_scissors_parts_are_graspable():
                                   "wire_cutter", "usb_plug", "toy_drawer", "frog"])
 def test_studio_parts_are_graspable(name):
     _check_studio_parts(name)
+
+
+def test_merged_spread_grasps_reach_the_rim_without_duplicates():
+    """A plate's best-scored grasps cluster at its centre; a second sampling with a wide
+    suppression radius reaches its rim. Merged, the rows of the first set come first unchanged,
+    every row's base index points at its own contacts, and a base grasp found by both samplings
+    is kept once."""
+    plate = trimesh.creation.box(extents=(0.10, 0.07, 0.008))
+    mesh = PartMesh(np.asarray(plate.vertices), np.asarray(plate.faces), "convex_hull", float("nan"), True, "")
+    key = jax.random.key(0)
+    a = sample_antipodal_grasps(mesh, key, GraspConfig(num_grasps=16))
+    b = sample_antipodal_grasps(mesh, key, GraspConfig(num_grasps=16, min_separation=0.012))
+    m = merge_grasps(a, b)
+    na = a.T_part_grasp.shape[0]
+    assert m.T_part_grasp.shape[0] == na + b.T_part_grasp.shape[0] and m.result == GraspResult.success
+    np.testing.assert_array_equal(np.asarray(m.T_part_grasp[:na]), np.asarray(a.T_part_grasp))
+    valid, bi = np.asarray(m.valid), np.asarray(m.base_index)
+    contacts = np.asarray(m.contacts)
+    # unshifted rows (shift index 1 of (-5, 0, 5) mm) sit at the midpoint of their own contacts
+    zero = (np.arange(len(valid)) % 3 == 1) & valid
+    np.testing.assert_allclose(np.asarray(m.T_part_grasp)[zero, 4:], contacts[bi[zero]].mean(1), atol=1e-5)
+    # each distinct contact pair is valid exactly once; b's copies of a's grasps became padding
+    kept = contacts[np.asarray(m.base_valid)].reshape(-1, 6)
+    assert len(np.unique(kept.round(6), axis=0)) == len(kept)
+    ca, cb = np.asarray(a.contacts)[np.asarray(a.base_valid)], np.asarray(b.contacts)[np.asarray(b.base_valid)]
+    shared = sum(np.any(np.all(np.abs(ca - c) < 1e-6, axis=(1, 2))) for c in cb)
+    assert shared >= 1 and len(kept) == len(ca) + len(cb) - shared
+    assert np.asarray(m.base_valid)[bi[valid]].all() and not np.any(np.asarray(m.score)[~valid] > -np.inf)
+    # the spread set reaches farther from the plate's centre than the best-scored set
+    r = lambda g: np.linalg.norm(np.asarray(g.T_part_grasp)[np.asarray(g.valid), 4:6], axis=1).max()  # noqa: E731
+    assert r(m) > r(a) + 0.01

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rsrd_jax.io import load_plan, load_trajectory
-from rsrd_jax.pipeline import PipelineConfig, run_pipeline, studio_hands_in_object_frame
+from rsrd_jax.pipeline import PipelineConfig, run_pipeline, studio_hands_in_object_frame, studio_separable
 from rsrd_jax.studio import StudioConfig, make_object
 
 
@@ -77,3 +77,27 @@ def test_robot_trial_rates_are_cumulative():
     assert res["objects"]["a"]["rates"]["exec"] == 0.5 and res["total"]["exec"] == pytest.approx(1 / 3)
     assert res["failure_causes"] == {"grasp": 1, "traj": 1}
     assert "| a | 2/2 | 2/2 | 1/2 | 1/2 | 1/2 |" in markdown(res)
+
+
+def test_the_studio_separable_flag_reaches_tracking(tmp_path):
+    """A scan does not say whether the parts come apart: the pipeline takes it from the studio's
+    object.json (usb_plug: separable; red_box: attached), and `rsrd-jax track` from --separable /
+    --no-separable or, by default, the model's metadata."""
+    from rsrd_jax.cli import build_parser
+
+    for name, expect in (("usb_plug", True), ("red_box", False)):
+        root = tmp_path / name
+        make_object(name, root, StudioConfig(scan_views=2, scan_size=(32, 24), parts=("scan",)))
+        assert studio_separable(root) is expect
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    with pytest.raises(FileNotFoundError, match="object.json"):
+        studio_separable(bad)
+    (bad / "object.json").write_text(json.dumps({"separable": "yes"}))
+    with pytest.raises(ValueError, match="separable"):
+        studio_separable(bad)
+    p = build_parser()
+    base = ["track", "m", "v", "--out", "o"]
+    assert p.parse_args(base).separable is None
+    assert p.parse_args(base + ["--separable"]).separable is True
+    assert p.parse_args(base + ["--no-separable"]).separable is False

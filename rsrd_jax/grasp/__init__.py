@@ -9,6 +9,7 @@ frame. Does not own: which part to grasp (`rsrd_jax.hands`), robot reachability 
 from ._antipodal import GraspConfig as GraspConfig
 from ._antipodal import GraspResult as GraspResult
 from ._antipodal import PartGrasps as PartGrasps
+from ._antipodal import merge_grasps as merge_grasps
 from ._antipodal import sample_antipodal_grasps as sample_antipodal_grasps
 from ._antipodal import sample_part_grasps as sample_part_grasps
 from ._mesh import MeshConfig as MeshConfig
@@ -22,6 +23,7 @@ __all__ = [
     "PartGrasps",
     "PartMesh",
     "build_part_mesh",
+    "merge_grasps",
     "sample_antipodal_grasps",
     "sample_part_grasps",
 ]

@@ -369,6 +369,30 @@ def sample_antipodal_grasps(
     )
 
 
+def merge_grasps(a: PartGrasps, b: PartGrasps) -> PartGrasps:
+    """One candidate set from two samplings of the same part (e.g. the best-scored grasps and a
+    spatially spread set): rows of ``b`` follow those of ``a``; a base grasp of ``b`` whose two
+    contacts equal those of a base grasp of ``a`` (within 0.1 mm) is turned into padding, so no
+    candidate is solved twice. ``result`` is success when either set has a grasp; counts add."""
+    ca, cb = np.asarray(a.contacts), np.asarray(b.contacts)
+    same = np.abs(cb[:, None] - ca[None]).max(axis=(-2, -1)) <= 1e-4  # (gb, ga)
+    dup = (same & np.asarray(a.base_valid)[None]).any(1) & np.asarray(b.base_valid)  # (gb,)
+    bi = np.asarray(b.base_index)
+    row_dup = dup[bi]
+    b_valid = np.asarray(b.valid) & ~row_dup
+    b_score = np.where(row_dup, -np.inf, np.asarray(b.score))
+    cat = lambda x, y: jnp.concatenate([jnp.asarray(x), jnp.asarray(y)])  # noqa: E731
+    return PartGrasps(
+        T_part_grasp=cat(a.T_part_grasp, b.T_part_grasp), width=cat(a.width, b.width),
+        score=cat(a.score, jnp.asarray(b_score, a.score.dtype)), valid=cat(a.valid, b_valid),
+        base_index=cat(a.base_index, jnp.asarray(bi + ca.shape[0], a.base_index.dtype)),
+        contacts=cat(a.contacts, b.contacts), base_valid=cat(a.base_valid, np.asarray(b.base_valid) & ~dup),
+        result=b.result if bool(b.result == GraspResult.success) and not bool(a.result == GraspResult.success) else a.result,
+        num_hit=a.num_hit + b.num_hit, num_width_ok=a.num_width_ok + b.num_width_ok,
+        num_antipodal=a.num_antipodal + b.num_antipodal,
+    )
+
+
 def sample_part_grasps(
     part_points: Sequence[Float[np.ndarray, "_n 3"]],
     key: PRNGKeyArray,

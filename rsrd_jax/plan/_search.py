@@ -18,7 +18,7 @@ import jaxlie
 import numpy as np
 from jaxtyping import Float
 
-from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, sample_antipodal_grasps
+from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, merge_grasps, sample_antipodal_grasps
 from ..hands import RankConfig, rank_parts
 from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
 from ._costs import (
@@ -131,6 +131,11 @@ class PlanConfig(eqx.Module):
     """Finger opening beyond the grasp's half-width during the approach (m per finger, capped at
     fully open); None = fully open. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open
     jaw (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part."""
+    approach_clearance_retry: float | None = 0.003
+    """If no candidate's approach clears with ``approach_clearance``, the approaches are solved
+    again with this smaller finger opening beyond the grasp's half-width (m per finger); None =
+    no retry. The plan's attempt records the opening used (``approach_clearance``). An arm of
+    the studio bear hangs 6 mm beside its torso: the pads opened 10 mm beyond it touch the torso."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 8
@@ -142,6 +147,13 @@ class PlanConfig(eqx.Module):
     are removed by seating (e.g. grasps in the middle of a plate put the palm into it; on the
     studio scissors only grasps on the rings' outer ends seat, and 32 base grasps had none), and
     ``max_candidates`` caps what is solved."""
+    spread_grasp_config: GraspConfig | None = GraspConfig(num_grasps=64, min_separation=0.012)
+    """A second sampling of the same part with a wide non-maximum suppression, merged into the
+    candidates (:func:`rsrd_jax.grasp.merge_grasps`); None = off. The best-scored grasps cluster
+    around the part's centre (the score rewards centredness), while a lid, a panel lying on its
+    stand or an arm next to a torso can only be held at its rim or tip: on the studio's red_box
+    and led_light (ground-truth motion) no grasp of the 64 best seated, and 20–24 of the spread
+    set do."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -524,7 +536,11 @@ def plan_robot(
     def get_grasps(k: int) -> PartGrasps:
         if k not in grasp_cache:
             mesh = build_part_mesh(np.asarray(part_points[k]), config.mesh_config)
-            grasp_cache[k] = sample_antipodal_grasps(mesh, jax.random.fold_in(key, k), config.grasp_config)
+            kk = jax.random.fold_in(key, k)
+            g = sample_antipodal_grasps(mesh, kk, config.grasp_config)
+            if config.spread_grasp_config is not None:
+                g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, config.spread_grasp_config))
+            grasp_cache[k] = g
         return grasp_cache[k]
 
     hand = hand_geometry(robot_lite, coll.proxy)
@@ -760,20 +776,27 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     q_ref = x0.copy()
     ref_w = np.full((n, A), 0.1, np.float32)
     ref_w[:, -1] = 10.0  # end at the trajectory's first keyframe
-    # the approach is made with the fingers opened ``approach_clearance`` beyond the grasp width
-    grip = np.full((n, 2), open_grip, np.float32)
-    if cfg.approach_clearance is not None:
-        for m, c in enumerate(cands):
-            for a, k, i, g in c["arms"]:
-                grip[m, a] = min(float(g.width[i]) / 2 + cfg.approach_clearance, open_grip)
     # The last waypoint reaches the same TCP pose as the trajectory's first keyframe, possibly
     # elsewhere in the arm's null space; it is replaced by that keyframe (last step recorded) before the
     # segment is checked, so the check sees the configuration the robot will take (with open
     # fingers here).
     q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
-    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
-                        q_ref, ref_w, q_last=q_first)
-    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    clearances = [cfg.approach_clearance]
+    if cfg.approach_clearance_retry is not None and cfg.approach_clearance_retry != cfg.approach_clearance:
+        clearances.append(cfg.approach_clearance_retry)
+    for clearance in clearances:
+        # the approach is made with the fingers opened ``clearance`` beyond the grasp width
+        grip = np.full((n, 2), open_grip, np.float32)
+        if clearance is not None:
+            for m, c in enumerate(cands):
+                for a, k, i, g in c["arms"]:
+                    grip[m, a] = min(float(g.width[i]) / 2 + clearance, open_grip)
+        b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
+                            q_ref, ref_w, q_last=q_first)
+        alive, counts = _reject(b, np.ones(n, bool), cfg)
+        att["approach_clearance"] = clearance
+        if alive.any():
+            break
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
     end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)
