@@ -153,7 +153,10 @@ class PlanConfig(eqx.Module):
     around the part's centre (the score rewards centredness), while a lid, a panel lying on its
     stand or an arm next to a torso can only be held at its rim or tip: on the studio's red_box
     and led_light (ground-truth motion) no grasp of the 64 best seated, and 20–24 of the spread
-    set do."""
+    set do. A spread grasp comes after every surviving best-scored one (in the approach order and
+    between arm assignments; ``info["chosen"]["spread_grasp"]``): a rim grasp holds a part far
+    from its centre, where tracking errors move it most (the stapler's arm was pushed 43 mm by
+    the approach when a spread grasp won on cost)."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -531,6 +534,7 @@ def plan_robot(
 
     # Grasps (lazily per part)
     grasp_cache: dict[int, PartGrasps] = dict(grasps or {})
+    spread_row: dict[int, int] = {}  # part -> first row of its spread grasps (after the best-scored ones)
     key = jax.random.PRNGKey(config.seed)
 
     def get_grasps(k: int) -> PartGrasps:
@@ -538,6 +542,7 @@ def plan_robot(
             mesh = build_part_mesh(np.asarray(part_points[k]), config.mesh_config)
             kk = jax.random.fold_in(key, k)
             g = sample_antipodal_grasps(mesh, kk, config.grasp_config)
+            spread_row[k] = int(g.T_part_grasp.shape[0])
             if config.spread_grasp_config is not None:
                 g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, config.spread_grasp_config))
             grasp_cache[k] = g
@@ -639,7 +644,8 @@ def plan_robot(
             if stage is not None:
                 last_stage = stage
                 continue
-            cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info)
+            cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info,
+                            spread_row)
             if cand is None:
                 last_stage = att.get("failed_stage", "collision")
                 continue
@@ -648,7 +654,7 @@ def plan_robot(
             if plan is None:
                 last_stage = "approach"
                 continue
-            if best is None or plan["cost"] < best["cost"]:
+            if best is None or (plan["tier"], plan["cost"]) < (best["tier"], best["cost"]):
                 best = plan
         if best is not None:
             break
@@ -667,6 +673,7 @@ def plan_robot(
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
         return _failure(res, msg, T_robot_obj, idx, info)
     info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
+    info["chosen"]["spread_grasp"] = bool(best["tier"])
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
                                      for k, i in zip(best["part"], best["grasp_index_arr"])]
     q_key = best["q"]
@@ -696,22 +703,28 @@ def _first_empty_stage(per_arm, att) -> str | None:
     return None
 
 
-def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
-    """Single arm: survivors ordered by cost. Bimanual: top-k × top-k joint solves."""
+def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info,
+             spread_row: dict[int, int]):
+    """Single arm: survivors ordered by (tier, cost). Bimanual: top-k × top-k joint solves.
+    Tier 1 = a grasp of the spread set (row ≥ ``spread_row[k]``): used only after every
+    best-scored grasp (tier 0)."""
+    tier = lambda k, i: (np.asarray(i) >= spread_row.get(k, np.iinfo(np.int64).max)).astype(int)  # noqa: E731
+
+    def order(k, b, alive):
+        ids = np.nonzero(alive)[0]
+        return ids[np.lexsort((b.cost[ids], tier(k, ids)))]
+
     if len(per_arm) == 1:
         a, k, b, alive, target, g = per_arm[0]
-        ids = np.nonzero(alive)[0]
-        ids = ids[np.argsort(b.cost[ids])]
+        ids = order(k, b, alive)
         active = np.zeros(2, bool)
         active[a] = True
         return [dict(q=b.q[i], cost=float(b.cost[i]), lm_result=int(b.lm_result[i]), iterations=int(b.iterations[i]),
-                     target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i])
-                for i in ids]
+                     target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i],
+                     tier=int(tier(k, i))) for i in ids]
     (a0, k0, b0, al0, t0, g0), (a1, k1, b1, al1, t1, g1) = per_arm
-    i0 = np.nonzero(al0)[0]
-    i0 = i0[np.argsort(b0.cost[i0])][: cfg.top_k_per_arm]
-    i1 = np.nonzero(al1)[0]
-    i1 = i1[np.argsort(b1.cost[i1])][: cfg.top_k_per_arm]
+    i0 = order(k0, b0, al0)[: cfg.top_k_per_arm]
+    i1 = order(k1, b1, al1)[: cfg.top_k_per_arm]
     pairs = [(i, j) for i in i0 for j in i1]
     n = len(pairs)
     K = b0.q.shape[1]
@@ -740,11 +753,12 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
         att["failed_stage"] = _exhausting_stage(counts)
         return None
     ids = np.nonzero(alive)[0]
-    ids = ids[np.argsort(b.cost[ids])]
+    pair_tier = np.array([max(int(tier(k0, pairs[m][0])), int(tier(k1, pairs[m][1]))) for m in ids], int)
+    ids, pair_tier = ids[np.lexsort((b.cost[ids], pair_tier))], np.sort(pair_tier)
     return [dict(q=b.q[m], cost=float(b.cost[m]), lm_result=int(b.lm_result[m]), iterations=int(b.iterations[m]),
                  target=target[m], active=np.ones(2, bool),
                  arms=[(a0, k0, pairs[m][0], g0), (a1, k1, pairs[m][1], g1)], pos=b.pos[m], rot=b.rot[m],
-                 mins=b.mins[m]) for m in ids]
+                 mins=b.mins[m], tier=int(t)) for m, t in zip(ids, pair_tier)]
 
 
 def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
@@ -828,5 +842,5 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         target=np.asarray(c["target"], float), active=c["active"], part=part, grasp_index_arr=gidx,
         grasp_index=[int(v) for v in gidx], parts=[int(v) for v in part], T_part_grasp=Tpg, width=width,
         pos=np.asarray(c["pos"], float), rot=np.asarray(c["rot"], float), mins=np.asarray(mins, float),
-        q_approach=q_app, approach_target=np.asarray(target[m], float),
+        q_approach=q_app, approach_target=np.asarray(target[m], float), tier=c["tier"],
     )

@@ -1,7 +1,10 @@
 """The studio's objects: metric stand-ins for the RSRD paper's objects, each with its demo.
 
 Sizes are chosen so that every moved part has a region the YuMi's parallel gripper (jaw opening
-≤ 50 mm) can grasp. Frames: the root part sits on the floor (z = 0 at its lowest point after
+≤ 50 mm, pads 8 mm thick reaching 20 mm past the TCP) can hold without its pads touching another
+part: a lid or a panel lying on its base gets a lip that sticks out in front, limbs hang clear of
+the body. ``tests/test_plan.py::test_every_studio_demo_plans_on_ground_truth`` checks the rule with
+the planner on each demo's ground truth. Frames: the root part sits on the floor (z = 0 at its lowest point after
 placement); +y is "back", −y faces the demo camera, +z up.
 """
 
