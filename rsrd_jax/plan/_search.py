@@ -131,11 +131,6 @@ class PlanConfig(eqx.Module):
     """Finger opening beyond the grasp's half-width during the approach (m per finger, capped at
     fully open); None = fully open. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open
     jaw (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part."""
-    approach_clearance_retry: float | None = 0.003
-    """If no candidate's approach clears with ``approach_clearance``, the approaches are solved
-    again with this smaller finger opening beyond the grasp's half-width (m per finger); None =
-    no retry. The plan's attempt records the opening used (``approach_clearance``). An arm of
-    the studio bear hangs 6 mm beside its torso: the pads opened 10 mm beyond it touch the torso."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 8
@@ -795,22 +790,15 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     # segment is checked, so the check sees the configuration the robot will take (with open
     # fingers here).
     q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
-    clearances = [cfg.approach_clearance]
-    if cfg.approach_clearance_retry is not None and cfg.approach_clearance_retry != cfg.approach_clearance:
-        clearances.append(cfg.approach_clearance_retry)
-    for clearance in clearances:
-        # the approach is made with the fingers opened ``clearance`` beyond the grasp width
-        grip = np.full((n, 2), open_grip, np.float32)
-        if clearance is not None:
-            for m, c in enumerate(cands):
-                for a, k, i, g in c["arms"]:
-                    grip[m, a] = min(float(g.width[i]) / 2 + clearance, open_grip)
-        b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
-                            q_ref, ref_w, q_last=q_first)
-        alive, counts = _reject(b, np.ones(n, bool), cfg)
-        att["approach_clearance"] = clearance
-        if alive.any():
-            break
+    # the approach is made with the fingers opened ``approach_clearance`` beyond the grasp width
+    grip = np.full((n, 2), open_grip, np.float32)
+    if cfg.approach_clearance is not None:
+        for m, c in enumerate(cands):
+            for a, k, i, g in c["arms"]:
+                grip[m, a] = min(float(g.width[i]) / 2 + cfg.approach_clearance, open_grip)
+    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
+                        q_ref, ref_w, q_last=q_first)
+    alive, counts = _reject(b, np.ones(n, bool), cfg)
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
     end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)
