@@ -134,7 +134,8 @@ class PlanConfig(eqx.Module):
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 8
-    """Best trajectory candidates (by cost) whose approach is solved."""
+    """Best trajectory candidates (by cost) whose approach is solved, per tier (best-scored grasps,
+    then spread ones)."""
     top_k_per_arm: int = 4
     """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves)."""
     grasp_config: GraspConfig = GraspConfig(num_grasps=64)
@@ -757,8 +758,10 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
 
 
 def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
-    """Approach segments for the best candidates (batched); the first that passes wins."""
-    cands = cands[: cfg.approach_candidates]
+    """Approach segments for the best candidates (batched; ``approach_candidates`` per tier, so a
+    spread grasp still gets its approach when every best-scored one fails); the first that passes
+    wins."""
+    cands = [c for t in (0, 1) for c in [c for c in cands if c["tier"] == t][: cfg.approach_candidates]]
     A = max(2, cfg.approach_steps)
     n = len(cands)
     s = np.linspace(0.0, 1.0, A)
