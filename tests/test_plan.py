@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -191,6 +193,27 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     assert none.result == PlanResult.no_grasp and "grasp" in none.message
     with pytest.raises(ValueError, match="T_obj_part"):
         plan_robot(robot, [_cube()], np.concatenate([traj, traj], 1), T_ROBOT_OBJ, config=CFG)
+
+
+def test_a_part_that_did_not_move_is_not_planned_for(robot):
+    """The fingertips touch a still cube throughout while a second cube moves: the hand ranking
+    puts the still one first, and the plan holds the moving one (holding the still one would
+    reproduce nothing). With the filter off, the still cube is planned for first."""
+    moving = _trajectory()
+    still = np.repeat(moving[:1], len(moving), 0)
+    still[..., 5] += 0.25
+    traj = np.concatenate([still, moving], 1)
+    c = np.asarray(still[0, 0, 4:])
+    tips = np.broadcast_to(np.stack([c - [0.021, 0, 0], c + [0.021, 0, 0]]), (len(traj), 1, 2, 3)).copy()
+    cfg = dataclasses.replace(CFG, parts=None)
+    plan = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, hands=tips, grasps={0: _grasps(8), 1: _grasps(8)}, config=cfg)
+    assert plan.info["ranking"] == "hands" and plan.info["still_parts"] == [0]
+    assert plan.info["relative_motion_mm"][0] == 0.0 and plan.info["relative_motion_mm"][1] > 20
+    assert [a["parts"] for a in plan.info["attempts"]] == [{"right": 1}]
+    assert plan.success and plan.part.tolist() == [1, -1], plan.message
+    off = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, hands=tips, grasps={0: _grasps(8), 1: _grasps(8)},
+                     config=dataclasses.replace(cfg, min_motion_fraction=0.0))  # fmt: skip
+    assert off.info["still_parts"] == [] and off.info["attempts"][0]["parts"] == {"right": 0}
 
 
 def test_tcp_errors_zero_at_fk(robot):
@@ -393,7 +416,6 @@ def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
     with the pad tips closer to the table than a 3 mm margin: rejected when the pads keep the
     margin, planned with ``pad_table_margin`` 1 mm. MuJoCo's own distance confirms the pads keep
     ≥ 1 mm (and use the allowance); the approach opens the jaw to the grasp width + 2 × 10 mm."""
-    import dataclasses
 
     import mujoco
 
