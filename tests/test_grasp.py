@@ -75,6 +75,26 @@ def test_fixed_alpha_is_used_and_plain_alpha_rule_is_available():
         assert 0.75 * hull < m.volume < 1.02 * hull
 
 
+def test_alpha_shape_keeps_the_studio_drawer_open():
+    """The studio toy_drawer's drawer (a floor, a front panel and a knob: an open container)
+    keeps its volume: the fillets an alpha ball leaves in its inner corners grow the volume by
+    5–15 % per alpha step, and the auto alpha must not read that as an unsealed surface and
+    sweep on until the space above the floor is filled (a solid block: no grasp on the panel).
+    Reference: the volume of the drawer's MuJoCo box geoms (they do not overlap)."""
+    import mujoco
+
+    from rsrd_jax.studio import SceneOptions, build_scene, get_object, part_surface_points
+
+    scene = build_scene(get_object("toy_drawer"), np.eye(4), SceneOptions(64, 48, 45.0, 0))
+    m, body = scene.model, scene.body_ids[1]
+    boxes = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
+    assert len(boxes) == 3
+    true_volume = sum(8 * np.prod(m.geom_size[g]) for g in boxes)
+    mesh = build_part_mesh(part_surface_points(m, body, 1500, 0))
+    assert mesh.method == "alpha_shape" and mesh.watertight, mesh.reason
+    assert 0.8 * true_volume < mesh.volume < 1.25 * true_volume, (mesh.volume, true_volume, mesh.alpha)
+
+
 def test_alpha_shape_keeps_concavity_that_the_hull_fills():
     # L-shaped plate, 40×40×10 mm minus a 30×30 mm corner, sampled within 0.5 mm of its surface
     # (as 3DGS centres are): union of boxes A = [0,40]×[0,10] and B = [0,10]×[0,40] (mm).
