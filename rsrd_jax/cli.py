@@ -181,7 +181,7 @@ def cmd_track(a: argparse.Namespace) -> int:
         mono = NoMonoDepth()
     else:
         mono = OnnxDepthAnything(a.mono_depth)
-    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb)
+    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb, support=a.w_support)
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
                       slides=not a.no_slides, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
@@ -419,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the parts come apart (ARAP α 0.1, no joint discovery) or, with --no-separable, stay "
                          "attached; default: the model's meta['separable'], else attached")  # fmt: skip
     tr.add_argument("--w-rgb", type=float, default=0.05, help="photometric L1 weight")
+    tr.add_argument("--w-support", type=float, default=0.0,
+                    help="support-plane weight: no part below the table the scan rests on (0: off)")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--no-video", action="store_true", help="skip the overlay video")
     tr.add_argument("--rerun", action="store_true", help="also write track.rrd")

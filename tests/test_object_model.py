@@ -294,6 +294,24 @@ def test_auto_group_splits_studio_objects_at_their_joints():
         assert adjusted_rand_score(ids, lab) > min_ari, (name, adjusted_rand_score(ids, lab))
 
 
+def test_support_plane_is_the_table_under_the_scanned_object(studio_scan):
+    """Fitted to the scan's background depth (object pixels masked out), the plane is the table
+    the ground-truth object rests on: normal up within 0.1°, height at its lowest point."""
+    from rsrd_jax.io import read_capture
+    from rsrd_jax.parts import support_plane
+
+    cap = read_capture(studio_scan)
+    depths = np.stack([cap.depth(i) for i in range(len(cap))])
+    masks = np.stack([cap.valid_mask(i) for i in range(len(cap))])
+    world, _ = _gt_world(studio_scan)
+    c = world.mean(0)
+    plane = support_plane(cap.intrinsics, cap.T_cam_world(), depths, masks, c, 3 * np.linalg.norm(world - c, axis=1).max())
+    assert np.degrees(np.arccos(plane[2])) < 0.1
+    assert plane[3] == pytest.approx(world[:, 2].min(), abs=5e-4)
+    # without background depth there is no plane
+    assert support_plane(cap.intrinsics, cap.T_cam_world(), depths, np.ones_like(masks), c, 1.0) is None
+
+
 @pytest.mark.slow
 def test_build_small_studio_object(studio_scan, tmp_path):
     from rsrd_jax.parts import FieldConfig
@@ -302,6 +320,10 @@ def test_build_small_studio_object(studio_scan, tmp_path):
     m = build_object_model(studio_scan, cfg, progress=False, rrd_path=tmp_path / "b.rrd")
     assert m.num_parts == 2 and (tmp_path / "b.rrd").is_file()
     assert m.meta["metrics"]["part_label_accuracy"] >= 0.97
+    # the table fitted to the scan's background depth: the plane the ground-truth object rests on
+    n, d = np.asarray(m.meta["support_plane"][:3]), m.meta["support_plane"][3]
+    assert np.degrees(np.arccos(n[2])) < 0.1
+    assert d == pytest.approx(_gt_world(studio_scan)[0][:, 2].min(), abs=5e-4)
     save_object_model(m, tmp_path / "m")
     assert load_object_model(tmp_path / "m").gaussians.num_gaussians == m.gaussians.num_gaussians
 

@@ -6,7 +6,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations
+from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations, support_loss
 
 
 def test_barron_special_cases():
@@ -296,3 +296,26 @@ def test_prismatic_loss_allows_only_the_slide():
     h = 1e-4
     fd = [(float(f(h * e)) - float(f(-h * e))) / (2 * h) for e in np.eye(6, dtype=np.float32)]
     np.testing.assert_allclose(g, fd, rtol=2e-2, atol=2e-2)
+
+
+def test_support_loss_keeps_parts_above_the_table(key):
+    """Zero at rest and when the object is lifted; a part turned into the table costs the mean
+    of its squared depths below each centre's floor (min of the table and its rest height), as
+    brute force computes; a centre the scan put below the table may not sink further."""
+    pts = np.asarray(jax.random.uniform(key, (200, 3))) * [0.1, 0.02, 0.01]
+    pts[:5, 2] = -0.002  # stray centres under the table
+    plane = jnp.asarray([0.0, 0.0, 1.0, 0.0])
+    rest = jnp.asarray(pts, jnp.float32)
+    assert float(support_loss(rest, rest, plane, 0.001)) == 0.0
+    assert float(support_loss(rest + jnp.asarray([0.0, 0.0, 0.01]), rest, plane, 0.001)) == 0.0
+    T = jaxlie.SE3.from_rotation(jaxlie.SO3.from_y_radians(0.1))  # tilt about y through the origin
+    moved = np.asarray(T @ rest, np.float64)
+    floor = np.minimum(0.0, pts[:, 2])
+    want = np.mean(np.maximum(floor - moved[:, 2], 0.0) ** 2) / 0.001**2
+    got = float(support_loss(jnp.asarray(moved, jnp.float32), rest, plane, 0.001))
+    assert want > 1.0 and got == pytest.approx(want, rel=1e-4)
+    # a tilted plane: the same configuration expressed in a rotated frame costs the same
+    R = jaxlie.SO3.from_x_radians(0.3)
+    plane_r = jnp.concatenate([R @ plane[:3], plane[3:]])
+    got_r = float(support_loss(R @ jnp.asarray(moved, jnp.float32), R @ rest, plane_r, 0.001))
+    assert got_r == pytest.approx(want, rel=1e-3)

@@ -8,6 +8,7 @@ networks (`features/`).
 """
 
 from ._build import BuildConfig as BuildConfig, build_object_model as build_object_model, log_object_model as log_object_model
+from ._build import support_plane as support_plane
 from ._field import (
     FieldConfig as FieldConfig,
     fit_feature_field as fit_feature_field,

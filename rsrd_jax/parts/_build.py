@@ -109,6 +109,42 @@ def _extract(extractor: FeatureExtractor, images: np.ndarray, batch: int = 8) ->
     return np.concatenate(outs)
 
 
+def support_plane(intrinsics, T_cam_world: np.ndarray, depths: np.ndarray, masks: np.ndarray, centre: np.ndarray,
+                  radius: float, inlier_m: float = 0.002, iterations: int = 5) -> list[float] | None:  # fmt: skip
+    """The table the scanned object rests on, (n, d) with n·x = d (world frame, unit n towards
+    the cameras), from the scan's depth maps: the background pixels (outside the object masks)
+    within `radius` of the object's `centre`, back-projected, fitted with a plane by least
+    squares, refitted `iterations` times on the points within max(`inlier_m`, 3 × the median
+    absolute residual) of it. None without enough background depth (fewer than 100 points)."""
+    fx, fy, cx, cy = (float(x) for x in (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy))
+    H, W = depths.shape[1:]
+    uu, vv = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    pts, eyes = [], []
+    for v in range(len(depths)):
+        ok = (depths[v] > 0) & ~masks[v]
+        z = depths[v][ok]
+        pc = np.stack([(uu[ok] - cx) / fx * z, (vv[ok] - cy) / fy * z, z], -1)
+        Twc = np.linalg.inv(T_cam_world[v])
+        pts.append(pc @ Twc[:3, :3].T + Twc[:3, 3])
+        eyes.append(Twc[:3, 3])
+    pts = np.concatenate(pts)
+    pts = pts[np.linalg.norm(pts - centre, axis=1) <= radius]
+    if len(pts) < 100:
+        return None
+    keep = np.ones(len(pts), bool)
+    for _ in range(iterations):
+        q = pts[keep]
+        m = q.mean(0)
+        n = np.linalg.svd(q - m, full_matrices=False)[2][-1]
+        r = np.abs((pts - m) @ n)
+        keep = r <= max(inlier_m, 3.0 * float(np.median(r[keep])))
+        if keep.sum() < 100:
+            return None
+    if (np.mean(eyes, 0) - m) @ n < 0:
+        n = -n
+    return [float(v) for v in n] + [float(m @ n)]
+
+
 def build_object_model(
     capture_dir: str | Path,
     config: BuildConfig = BuildConfig(),
@@ -261,6 +297,8 @@ def build_object_model(
         fit_config={k: v for k, v in vars(config.fit).items()}, field_config=dict(vars(config.field)),
         pca_dim=config.pca_dim, stage_times_s=times, metrics=metrics, versions={"jax": jax.__version__},
         grid_hw=[int(gh), int(gw)], feature_crop_size=config.feature_crop_size,
+        support_plane=None if depths is None or masks is None else support_plane(
+            intr, T[train], depths[train], masks[train], means.mean(0), 3.0 * float(np.max(np.linalg.norm(means - means.mean(0), axis=1)))),
     )  # fmt: skip
     model = ObjectModel(
         gaussians=g,

@@ -25,6 +25,7 @@ from ._losses import (
     feature_loss as feature_loss,
     pose_smoothness as pose_smoothness,
     prismatic_loss as prismatic_loss,
+    support_loss as support_loss,
 )
 from ._observe import (
     MonoDepthSource as MonoDepthSource,

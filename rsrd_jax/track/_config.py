@@ -25,6 +25,9 @@ class LossWeights(eqx.Module):
     3.6/5.9) and does not free nerf_gun's slide (4.9/22.6 mm; ARAP 3.1/21.5)."""
     rgb: float = 0.05
     """Photometric L1 term (RSRD's release uses 0.05; 0 disables it)."""
+    support: float = 0.0
+    """Support-plane term (`support_loss`, scale `arap_scale`): no Gaussian passes below the table
+    the object rests on (`TrackConfig.support_plane`). Not in RSRD; off by default."""
 
 
 class TrackConfig(eqx.Module):
@@ -104,6 +107,10 @@ class TrackConfig(eqx.Module):
     """Barron α of the ARAP loss; None: 1.0 for attached parts, 0.1 for separable objects."""
     arap_scale: float = 0.001
     """Barron scale c of the ARAP loss, metres."""
+    support_plane: tuple[float, float, float, float] | None = None
+    """(n, d) of the support term, object frame (n·x = d, n up); None: the model's
+    `meta["support_plane"]` (the build fits it to the scan's table, `parts.support_plane`, when
+    the scan has depth and masks), else no plane (the term is off)."""
     smooth_iters: int = 30
     """Joint temporal smoothing iterations after the per-frame pass (0 disables smoothing)."""
     smooth_batch: int = 8

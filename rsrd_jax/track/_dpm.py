@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, touch_loss
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, support_loss, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -61,16 +61,20 @@ class TrackModel(eqx.Module):
     """Radius of each sliding part (metres; converts its rotation residual to a length)."""
     slide_weight: Float[Array, " q"]
     """Weight of each slide joint (one zero-weight dummy entry when there are none)."""
+    support_plane: Float[Array, "4"]
+    """(n, d): the table the object rests on, n·x = d in the object frame (`support_loss`); a
+    plane 1 km below the object when unknown (the term is then zero)."""
     num_features: int = eqx.field(static=True)
     num_parts: int = eqx.field(static=True)
 
     @staticmethod
     def from_object_model(model, max_gaussians: int, seed: int = 0, voxel_m: float | None = None,
-                          touch: bool = False) -> TrackModel:  # fmt: skip
+                          touch: bool = False, support_plane=None) -> TrackModel:  # fmt: skip
         """Host-side: optionally merge Gaussians per part on a `voxel_m` grid (level of detail for
         the tracker's render resolution), subsample to `max_gaussians` (keeping ARAP pairs whose
         ends survive), append one-hot part channels to the features. `touch`: set up the
-        as-touching term's candidates (otherwise one zero-weight dummy entry, no cost per step)."""
+        as-touching term's candidates (otherwise one zero-weight dummy entry, no cost per step).
+        `support_plane`: (n, d) of the support term (None: none, the plane lies 1 km below)."""
         g = model.gaussians
         rng = np.random.default_rng(seed)
         pairs = np.asarray(model.arap_pairs, np.int64).reshape(-1, 2)
@@ -121,6 +125,7 @@ class TrackModel(eqx.Module):
             slide_axes=jnp.asarray([[1.0, 0.0, 0.0]], jnp.float32),
             slide_lengths=jnp.zeros(1, jnp.float32),
             slide_weight=jnp.zeros(1, jnp.float32),
+            support_plane=jnp.asarray([0.0, 0.0, 1.0, -1e3] if support_plane is None else support_plane, jnp.float32),
             num_features=int(g.num_features),
             num_parts=P,
         )
@@ -248,6 +253,7 @@ class Weights(eqx.Module):
     alpha_mask: Float[Array, ""]
     step_scale: Float[Array, "6"]
     """Per tangent coordinate step multiplier: translations in units of the object radius."""
+    support: Float[Array, ""]
 
     @staticmethod
     def from_config(cfg, separable: bool, object_radius: float) -> Weights:
@@ -256,7 +262,7 @@ class Weights(eqx.Module):
         w = cfg.weights
         ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
         scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
-        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale)
+        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale, f(w.support))
 
 
 def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
@@ -290,13 +296,15 @@ def frame_objective(
                          tm.touch_direction, tm.touch_pairs, w.arap_alpha, w.arap_scale)  # fmt: skip
     l_slide = prismatic_loss(T_obj_part, tm.part_centroids, tm.slide_parts, tm.slide_axes, tm.slide_lengths,
                              tm.slide_weight, w.arap_alpha, w.arap_scale)  # fmt: skip
-    total = w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide) + w.touch * l_touch
+    l_support = support_loss(r.means, tm.gaussians.means, tm.support_plane, w.arap_scale)
+    total = (w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide) + w.touch * l_touch
+             + w.support * l_support)
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "support": l_support, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
 
 

@@ -147,3 +147,19 @@ def pose_smoothness(T: jaxlie.SE3, valid: Bool[Array, " t"] | None = None) -> Fl
     if valid is not None:
         per = per * (valid[:-1] & valid[1:])
     return jnp.mean(per)
+
+
+def support_loss(
+    means: Float[Array, "n 3"],
+    rest_means: Float[Array, "n 3"],
+    plane: Float[Array, "4"],
+    scale: Float[Array, ""] | float,
+) -> Float[Array, ""]:
+    """Support-plane term: no part passes through the table the object rests on. `plane` is
+    (n, d) with unit normal n pointing up (object frame). A posed Gaussian centre x costs
+    (h / scale)² when it is h = f − n·x > 0 below its floor f = min(d, n·x_rest) (a centre that
+    the scan put below the table may not sink further); above it nothing. Mean over the
+    Gaussians: zero at rest and for any motion that stays above the table."""
+    floor = jnp.minimum(plane[3], rest_means @ plane[:3])
+    h = jax.nn.relu(floor - means @ plane[:3])
+    return jnp.mean((h / scale) ** 2)

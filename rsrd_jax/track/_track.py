@@ -104,7 +104,9 @@ def track_video(
     if use_joints:
         r_pair = float(model.meta.get("arap_radius_m", 0.0025))
         model, neighbour = with_joint_slots(model, r_pair, max(4 * r_pair, 0.08 * float(model.meta.get("scale_m", 0.05))))
-    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel, touch=config.weights.touch > 0)
+    plane = _support_plane(model, config) if config.weights.support > 0 else None
+    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, voxel, touch=config.weights.touch > 0,
+                                      support_plane=plane)  # fmt: skip
     if not config.contact_pivots:
         tm = eqx.tree_at(lambda m: m.part_pivots, tm, jnp.zeros_like(tm.part_pivots))
     rest = rest_part_poses(tm.part_centroids)
@@ -248,6 +250,7 @@ def track_video(
         "occluder": getattr(obsr.occluder, "name", "?"),
         "mono_depth": getattr(obsr.mono, "name", "?"),
         "separable": separable,
+        "support_plane": plane,
         "config": _config_dict(config),
         "joints": joint_info,
         "velocity_hypothesis_frames": best.switched,
@@ -331,6 +334,18 @@ def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask,
     dts = (jnp.int32, jnp.float32, jnp.float32, jnp.float32)
     return eqx.tree_at(lambda m: (m.arap_weight, m.part_pivots, m.slide_parts, m.slide_axes, m.slide_lengths, m.slide_weight), tm,
                        (jnp.asarray(pw), jnp.asarray(piv, jnp.float32), *[jnp.asarray(x, dt) for x, dt in zip(new, dts)]))  # fmt: skip
+
+
+def _support_plane(model, config: TrackConfig) -> list[float] | None:
+    """The support term's plane: the config's, else the model's `meta["support_plane"]` (the
+    build fits it to the scan's table), else None (no term)."""
+    plane = config.support_plane if config.support_plane is not None else model.meta.get("support_plane")
+    if plane is None:
+        return None
+    plane = [float(v) for v in plane]
+    if len(plane) != 4 or not np.all(np.isfinite(plane)) or abs(np.linalg.norm(plane[:3]) - 1) > 1e-3:
+        raise ValueError(f"support_plane: expected (nx, ny, nz, d) with a unit normal, got {plane}")
+    return plane
 
 
 def _first_call_excess(times: list[float]) -> float:
