@@ -74,6 +74,11 @@ class PipelineConfig:
     plan sees the registered pose (2–3 mm off) and alpha-shape part meshes, the simulation the
     true geometry. With 0 the stapler's approach brushed the arm (16.9 mm disturbance, Grasp
     failed); with 3 mm every stage passed."""
+    plan_extent_meshes: bool = False
+    """Build the grasp meshes from the Gaussians' extents (`ObjectModel.part_extent_points`)
+    instead of their centres: the studio sunglasses' 4 mm arms have their centres on a sheet
+    (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
+    trials."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -262,7 +267,11 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [p - cents[k] for k, p in enumerate(pts)]
         hands = studio_hands_in_object_frame(studio_dir, traj.T_cam_obj)
-        plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands, config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin))
+        mesh_points = None
+        if cfg.plan_extent_meshes:
+            mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
+        plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
+                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin), mesh_points=mesh_points)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
             from .plan import log_plan

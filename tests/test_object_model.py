@@ -4,6 +4,7 @@ bad captures, ARAP pairs and automatic grouping."""
 import json
 import shutil
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -185,6 +186,38 @@ def test_save_load_roundtrip_exact(tmp_path):
     # static dicts are hashable, so the model can pass through jit
     out = jax.jit(lambda mm: decode_rendered(mm.decoder, mm.gaussians.features, jnp.ones(50)))(m2)
     assert out.shape == (50, 6)
+
+
+def test_part_extent_points_lie_on_each_gaussians_sigma_ellipsoid_and_thicken_a_sheet():
+    """Every extent point is one standard deviation from its Gaussian's centre in that
+    Gaussian's own metric (Mahalanobis distance 1, covariance from jaxlie's rotation of the
+    quaternion); a plate whose Gaussian centres lie on its mid-plane gets no antipodal grasp
+    from its centres (a sheet) and grasps across its thickness from its extent points."""
+    from rsrd_jax.grasp import build_part_mesh, sample_antipodal_grasps
+
+    rng = np.random.default_rng(3)
+    gx, gy = np.meshgrid(np.arange(-0.03, 0.0301, 0.0015), np.arange(-0.01, 0.0101, 0.0015))
+    n = gx.size
+    means = np.stack([gx.ravel(), gy.ravel(), rng.normal(0, 2e-4, n)], 1)
+    yaw = rng.uniform(0, np.pi, n)
+    quats = np.stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], 1)  # about z: the thin axis stays z
+    scales = np.tile([0.002, 0.0015, 0.0016], (n, 1))
+    g = Gaussians.create(means, quats, np.log(scales), np.zeros(n), np.full((n, 3), 0.5), np.zeros((n, 4)), np.zeros(n, int))
+    m = eqx.tree_at(lambda x: (x.gaussians, x.part_centroids), _random_model(p=1), (g, jnp.zeros((1, 3))))
+    ext = m.part_extent_points(0)
+    assert ext.shape == (7 * n, 3)
+    R = np.asarray(jaxlie.SO3(jnp.asarray(quats, jnp.float32)).as_matrix(), np.float64)
+    s = np.minimum(scales, np.percentile(scales, 90))
+    cov_inv = np.einsum("nij,nj,nkj->nik", R, 1 / s**2, R)
+    d = ext[n:].reshape(2, n, 3, 3) - means[None, :, None]  # (±, gaussian, axis, xyz)
+    maha = np.einsum("anbi,nij,anbj->anb", d, cov_inv, d)
+    np.testing.assert_allclose(maha, 1.0, rtol=1e-4)
+    key = jax.random.key(0)
+    flat = sample_antipodal_grasps(build_part_mesh(np.asarray(m.part_points(0))), key)
+    thick = sample_antipodal_grasps(build_part_mesh(ext), key)
+    assert not np.asarray(flat.valid).any()
+    w = np.asarray(thick.width)[np.asarray(thick.valid)]
+    assert len(w) and np.median(w) == pytest.approx(2 * 0.0016, abs=1e-3)
 
 
 def test_load_errors_name_file_and_field(tmp_path):

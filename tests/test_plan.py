@@ -193,6 +193,8 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     assert none.result == PlanResult.no_grasp and "grasp" in none.message
     with pytest.raises(ValueError, match="T_obj_part"):
         plan_robot(robot, [_cube()], np.concatenate([traj, traj], 1), T_ROBOT_OBJ, config=CFG)
+    with pytest.raises(ValueError, match="mesh_points"):
+        plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, config=CFG, mesh_points=[_cube(), _cube()])
 
 
 def test_a_part_that_did_not_move_is_not_planned_for(robot):

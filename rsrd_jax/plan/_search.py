@@ -445,6 +445,7 @@ def plan_robot(
     hands: Float[np.ndarray, "t h 2 3"] | None = None,
     grasps: dict[int, PartGrasps] | None = None,
     config: PlanConfig = PlanConfig(),
+    mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
 ) -> RobotPlan:
     """Plan a YuMi joint trajectory that makes grasped parts follow a part trajectory.
 
@@ -480,6 +481,9 @@ def plan_robot(
         hands: optional (T, H, 2, 3) fingertip keypoints in the object frame for part ranking.
         grasps: optional precomputed grasps per part index (else sampled on the part points).
         config: options.
+        mesh_points: optional P point sets (part frames) the grasp meshes are built from instead
+            of ``part_points`` (e.g. ``ObjectModel.part_extent_points``: a thin part's Gaussian
+            centres lie on its mid-surface); collisions are still checked on ``part_points``.
 
     Returns:
         :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why.
@@ -497,6 +501,8 @@ def plan_robot(
         raise ValueError(f"T_obj_part: expected shape (T, {P}, 7), got {T_obj_part.shape}")
     if T_robot_obj.shape != (7,) or not np.all(np.isfinite(T_robot_obj)):
         raise ValueError(f"T_robot_obj: expected 7 finite numbers (wxyz_xyz), got {T_robot_obj}")
+    if mesh_points is not None and len(mesh_points) != P:
+        raise ValueError(f"mesh_points: expected {P} point sets (one per part), got {len(mesh_points)}")
     if config.parts is not None and any(not 0 <= k < P for k in config.parts):
         raise ValueError(f"config.parts {config.parts} out of range for {P} parts")
     if config.bimanual and P < 2 and config.parts is None:
@@ -548,7 +554,7 @@ def plan_robot(
 
     def get_grasps(k: int) -> PartGrasps:
         if k not in grasp_cache:
-            mesh = build_part_mesh(np.asarray(part_points[k]), config.mesh_config)
+            mesh = build_part_mesh(np.asarray((part_points if mesh_points is None else mesh_points)[k]), config.mesh_config)
             kk = jax.random.fold_in(key, k)
             g = sample_antipodal_grasps(mesh, kk, config.grasp_config)
             spread_row[k] = int(g.T_part_grasp.shape[0])
