@@ -258,6 +258,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         print(f"error: {out / 'plan.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
     hands = None
+    mesh_points = None
     if a.studio_gt:
         inp = studio_plan_inputs(a.studio_gt)
         part_points, T_obj_part, hands = inp.part_points, inp.T_obj_part, inp.hands
@@ -277,6 +278,8 @@ def cmd_plan(a: argparse.Namespace) -> int:
             return 2
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [np.asarray(model.part_points(k)) - cents[k] for k in range(model.num_parts)]
+        if a.extent_meshes:
+            mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
         T_robot_obj = _parse_object_pose(a.object_pose)
     if a.hands == "none":
@@ -291,7 +294,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     )  # fmt: skip
     t0 = time.perf_counter()
     robot = load_yumi()
-    plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg)
+    plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points)
     save_plan(plan, out)
     print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
     if a.rerun and plan.success:
@@ -455,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--studio-gt", default=None, metavar="DIR",
                     help="use a studio object's ground truth (scan/demo/robot_view) instead of MODEL and TRAJ")  # fmt: skip
     pl.add_argument("--out", required=True, help="output directory (plan.npz + plan.json)")
+    pl.add_argument("--extent-meshes", action="store_true",
+                    help="grasp meshes from the Gaussians' ±1σ extents, not their centres (thin parts)")
     pl.add_argument("--keyframes", type=int, default=50, help="keyframes of the joint trajectory")
     pl.add_argument("--bimanual", action="store_true", help="plan both arms on a ranked (left, right) part pair")
     pl.add_argument("--parts", type=int, nargs="+", default=None, help="parts to use (default: ranked)")

@@ -288,7 +288,7 @@ def test_bimanual_plan_couples_both_arms(robot):
 @pytest.mark.slow
 def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     """`rsrd-jax plan MODEL TRAJ --object-pose ...` on a one-part cube model and a written
-    trajectory: grasps are sampled on the model's Gaussians, the plan tracks
+    trajectory: grasps are sampled on the model's Gaussians (their ±1σ extents), the plan tracks
     T_robot_obj · T_obj_part · T_part_grasp at every keyframe, and --rerun writes plan.rrd."""
     from rsrd_jax.cli import main
     from rsrd_jax.features import fit_pca
@@ -318,7 +318,7 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     out = tmp_path / "plan"
     rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
                "--out", str(out), "--keyframes", "4", "--chunk", "8", "--max-iterations", "40", "--hands", "none",
-               "--grasps", "2", "--approach-steps", "4", "--rerun"])  # fmt: skip
+               "--grasps", "2", "--approach-steps", "4", "--rerun", "--extent-meshes"])  # fmt: skip
     plan = load_plan(out)
     assert rc == 0 and plan.success, plan.info
     k = int(plan.part[plan.active][0])
