@@ -319,3 +319,17 @@ def test_support_loss_keeps_parts_above_the_table(key):
     plane_r = jnp.concatenate([R @ plane[:3], plane[3:]])
     got_r = float(support_loss(R @ jnp.asarray(moved, jnp.float32), R @ rest, plane_r, 0.001))
     assert got_r == pytest.approx(want, rel=1e-3)
+
+
+def test_support_plane_is_required_and_checked_when_the_term_is_on():
+    import types
+
+    from rsrd_jax.track import LossWeights, TrackConfig
+    from rsrd_jax.track._track import _support_plane
+
+    on = TrackConfig(weights=LossWeights(support=1.0))
+    with pytest.raises(ValueError, match="support plane"):
+        _support_plane(types.SimpleNamespace(meta={}), on)
+    assert _support_plane(types.SimpleNamespace(meta={"support_plane": [0, 0, 1, 0.01]}), on) == [0.0, 0.0, 1.0, 0.01]
+    with pytest.raises(ValueError, match="unit normal"):
+        _support_plane(types.SimpleNamespace(meta={}), TrackConfig(weights=LossWeights(support=1.0), support_plane=(0, 0, 2, 0)))

@@ -114,9 +114,9 @@ class ObjectModel(eqx.Module):
         mid-surface, its thickness only in their scales (the studio sunglasses' 4 mm arms: centres
         within ±1 mm, 0.8 mm standard deviation across the arm at 160×120), so a mesh of the
         centres is a sheet that no antipodal grasp fits."""
-        ids = np.asarray(self.gaussians.part_ids) == k
         if not 0 <= k < self.num_parts:
             raise IndexError(f"part {k} out of range (model has {self.num_parts} parts)")
+        ids = np.asarray(self.gaussians.part_ids) == k
         mu = np.asarray(self.gaussians.means, np.float64)[ids]
         s = np.exp(np.asarray(self.gaussians.log_scales, np.float64)[ids])
         s = np.minimum(s, np.percentile(s, cap_percentile)) * sigmas

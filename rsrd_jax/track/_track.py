@@ -336,12 +336,14 @@ def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask,
                        (jnp.asarray(pw), jnp.asarray(piv, jnp.float32), *[jnp.asarray(x, dt) for x, dt in zip(new, dts)]))  # fmt: skip
 
 
-def _support_plane(model, config: TrackConfig) -> list[float] | None:
+def _support_plane(model, config: TrackConfig) -> list[float]:
     """The support term's plane: the config's, else the model's `meta["support_plane"]` (the
-    build fits it to the scan's table), else None (no term)."""
+    build fits it to the scan's table when the scan has depth and masks). Called only with the
+    term on: without a plane that is an error, not a silently inactive term."""
     plane = config.support_plane if config.support_plane is not None else model.meta.get("support_plane")
     if plane is None:
-        return None
+        raise ValueError("weights.support > 0 needs a support plane: TrackConfig.support_plane, or a model built "
+                         "from a scan with depth and masks (meta['support_plane'])")
     plane = [float(v) for v in plane]
     if len(plane) != 4 or not np.all(np.isfinite(plane)) or abs(np.linalg.norm(plane[:3]) - 1) > 1e-3:
         raise ValueError(f"support_plane: expected (nx, ny, nz, d) with a unit normal, got {plane}")
