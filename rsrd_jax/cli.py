@@ -232,6 +232,19 @@ def cmd_build(a: argparse.Namespace) -> int:
     return 0
 
 
+def _clearance(value: str) -> float | None:
+    """``--approach-clearance`` item: metres, or 'open' (None: fully open)."""
+    if value.lower() == "open":
+        return None
+    try:
+        v = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected metres or 'open', got {value!r}") from None
+    if not v >= 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a clearance ≥ 0 m, got {value!r}")
+    return v
+
+
 def _parse_object_pose(value: list[str]):
     import numpy as np
 
@@ -290,7 +303,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
-        pad_table_margin=a.pad_table_margin, approach_clearance=a.approach_clearance,
+        pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
     )  # fmt: skip
     t0 = time.perf_counter()
     robot = load_yumi()
@@ -481,8 +494,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="clearance (m) below which a robot-table/part/self distance is a collision (`rsrd-jax demo`: 0.003)")  # fmt: skip
     pl.add_argument("--pad-table-margin", type=float, default=0.001,
                     help="clearance (m) the finger pads keep from the table (fingertip grasps of flat parts)")  # fmt: skip
-    pl.add_argument("--approach-clearance", type=float, default=0.01,
-                    help="finger opening beyond the grasp's half-width during the approach (m per finger)")  # fmt: skip
+    pl.add_argument("--approach-clearance", type=_clearance, nargs="+", default=[None, 0.01], metavar="M|open",
+                    help="finger openings tried for the approach, widest first: m per finger beyond the grasp's "
+                         "half-width, or 'open' (fully open); the widest collision-free one is used")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")

@@ -79,3 +79,15 @@ def test_compilation_cache_stores_and_can_be_turned_off(tmp_path):
     env["RSRD_JAX_NO_COMPILE_CACHE"] = "1"
     off = subprocess.run([sys.executable, "-c", code, str(tmp_path / "off")], env=env, capture_output=True, text=True, check=True)
     assert off.stdout.strip() == "None" and not (tmp_path / "off").exists()
+
+
+def test_plan_approach_clearance_rejects_bad_values(tmp_path, capsys):
+    """``--approach-clearance`` takes metres or 'open'; anything else is an argparse error naming
+    the value, before any file is read."""
+    for bad in ("wide", "-0.01", "nan"):
+        with pytest.raises(SystemExit) as e:
+            main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", "0", "0", "0", "0",
+                  "--out", str(tmp_path / "p"), "--approach-clearance", "open", bad])  # fmt: skip
+        assert e.value.code == 2
+        assert repr(bad) in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()

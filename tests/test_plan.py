@@ -417,7 +417,7 @@ def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
     """The pads end 20 mm past the TCP, so a grasp centred 3 mm above the table can only be seated
     with the pad tips closer to the table than a 3 mm margin: rejected when the pads keep the
     margin, planned with ``pad_table_margin`` 1 mm. MuJoCo's own distance confirms the pads keep
-    ≥ 1 mm (and use the allowance); the approach opens the jaw to the grasp width + 2 × 10 mm."""
+    ≥ 1 mm (and use the allowance); with nothing beside the bar the approach opens the jaw fully."""
 
     import mujoco
 
@@ -430,7 +430,8 @@ def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
                       config=dataclasses.replace(cfg, pad_table_margin=0.001))
     assert plan.success, (plan.message, plan.info)
     assert plan.info["chosen"]["grasp_depth"][0] == pytest.approx(0.019)
-    np.testing.assert_allclose(plan.q_approach[:, 14], 0.006 + 0.01, atol=1e-6)
+    np.testing.assert_allclose(plan.q_approach[:, 14], robot.upper[14], atol=1e-6)
+    assert plan.info["attempts"][0]["approach_clearance"] is None
     m = robot.mj_model
     d = mujoco.MjData(m)
     table = m.geom("table").id
@@ -441,6 +442,54 @@ def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
         mujoco.mj_forward(m, d)
         dist.append(min(mujoco.mj_geomDistance(m, d, p, table, 0.05, None) for p in pads))
     assert 0.001 - 2e-4 <= min(dist) < 0.003
+
+
+def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
+    """A still bar lies beside the grasped flat bar (its near face 22 mm from the grasp centre):
+    the fully open pads (25 mm from the centre) would land on it, and so would pads opened 8 mm
+    beyond the grasp, so the approach takes the last opening of ``approach_clearance`` (2 mm). MuJoCo's own pad–neighbour distance along the
+    approach: below the margin with the jaw fully open, above it with the chosen opening."""
+    import mujoco
+
+    pts, traj, grasps = _flat_bar()
+    T = traj.shape[0]
+    beside = np.asarray(jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.028, 0.003])).wxyz_xyz)
+    traj2 = np.concatenate([traj, np.repeat(beside[None, None], T, 0)], 1)
+    cfg = dataclasses.replace(CFG, collision_margin=0.003, pad_table_margin=0.001, approach_clearance=(None, 0.008, 0.002))
+    plan = plan_robot(robot, [pts, pts], traj2, T_ROBOT_OBJ, grasps={0: grasps}, config=cfg)
+    assert plan.success, (plan.message, plan.info)
+    assert plan.info["attempts"][0]["approach_clearance"] == 0.002
+    np.testing.assert_allclose(plan.q_approach[:, 14], 0.006 + 0.002, atol=1e-6)
+    # MuJoCo's box–box distance between each right pad (posed by the robot model) and the
+    # neighbour (a box in a two-geom model)
+    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
+    pads = [m.geom(n).id for n in ("pad_r_finger_r", "pad_r_finger_l")]
+    T_robot_beside = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(beside))
+    size = " ".join(map(str, m.geom_size[pads[0]]))
+    pair = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody>
+        <body mocap="true"><geom name="pad" type="box" size="{size}"/></body>
+        <body mocap="true"><geom name="bar" type="box" size="0.03 0.006 0.003"/></body>
+        </worldbody></mujoco>""")
+    pd = mujoco.MjData(pair)
+    pd.mocap_pos[1] = np.asarray(T_robot_beside.translation())
+    pd.mocap_quat[1] = np.asarray(T_robot_beside.rotation().wxyz)
+
+    def clearance(q, grip):
+        q = np.array(q, float)
+        q[14] = grip
+        d.qpos[:] = robot.qpos(q)
+        mujoco.mj_forward(m, d)
+        out = np.inf
+        for p in pads:
+            pd.mocap_pos[0] = d.geom_xpos[p]
+            mujoco.mju_mat2Quat(pd.mocap_quat[0], d.geom_xmat[p])
+            mujoco.mj_forward(pair, pd)
+            out = min(out, mujoco.mj_geomDistance(pair, pd, 0, 1, 0.05, None))
+        return out
+
+    for grip in (robot.upper[14], 0.006 + 0.008):
+        assert min(clearance(q, grip) for q in plan.q_approach[-2:]) < cfg.collision_margin
+    assert min(clearance(q, plan.q_approach[0, 14]) for q in plan.q_approach) >= cfg.collision_margin
 
 
 @pytest.mark.slow

@@ -135,10 +135,15 @@ class PlanConfig(eqx.Module):
     grasp score first (RSRD solves 480)."""
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
-    approach_clearance: float | None = 0.01
-    """Finger opening beyond the grasp's half-width during the approach (m per finger, capped at
-    fully open); None = fully open. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open
-    jaw (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part."""
+    approach_clearance: float | tuple[float | None, ...] | None = (None, 0.01)
+    """Finger openings tried for the approach, widest first: each is the opening beyond the
+    grasp's half-width (m per finger, capped at fully open; None = fully open). Each candidate
+    takes the widest opening whose approach is collision-free; a candidate earlier in the order
+    wins over a wider opening. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open jaw
+    (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part, so it
+    falls back to 10 mm; with only 10 mm the stapler's tracked-and-registered arm (2–5 mm off,
+    sagging on its hinge) met a pad during the demo's approach (16.5 mm disturbance, Grasp
+    failed), fully open it does not."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 8
@@ -812,14 +817,25 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     # segment is checked, so the check sees the configuration the robot will take (with open
     # fingers here).
     q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
-    # the approach is made with the fingers opened ``approach_clearance`` beyond the grasp width
-    grip = np.full((n, 2), open_grip, np.float32)
-    if cfg.approach_clearance is not None:
-        for m, c in enumerate(cands):
-            for a, k, i, g in c["arms"]:
-                grip[m, a] = min(float(g.width[i]) / 2 + cfg.approach_clearance, open_grip)
-    b = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
-                        q_ref, ref_w, q_last=q_first)
+    # the approach is made with the fingers opened beyond the grasp width: every opening of
+    # ``approach_clearance`` is checked (one batch, candidate-major) and the widest that passes is used
+    clear = cfg.approach_clearance if isinstance(cfg.approach_clearance, tuple) else (cfg.approach_clearance,)
+    G = len(clear)
+    grip = np.full((n, G, 2), open_grip, np.float32)
+    for m, c in enumerate(cands):
+        for a, k, i, g in c["arms"]:
+            for j, cl in enumerate(clear):
+                grip[m, j, a] = open_grip if cl is None else min(float(g.width[i]) / 2 + cl, open_grip)
+    rep = lambda x: np.repeat(x, G, 0)  # noqa: E731
+    b_all = _run_candidates(params_a, robot_lite, coll, rep(x0), rep(target), rep(active), T_part0, mask, cfg,
+                            acceleration, grip.reshape(n * G, 2), rep(q_ref), rep(ref_w), q_last=rep(q_first))  # fmt: skip
+    alive_all, _ = _reject(b_all, np.ones(n * G, bool), cfg)
+    alive_all = alive_all.reshape(n, G)
+    # per candidate: its widest passing opening (or, if none passes, the narrowest, for the counts)
+    pick = np.where(alive_all.any(1), np.argmax(alive_all, 1), G - 1)
+    rows = np.arange(n) * G + pick
+    b = jax.tree.map(lambda f: np.asarray(f)[rows], b_all)
+    grip = grip[np.arange(n), pick]
     alive, counts = _reject(b, np.ones(n, bool), cfg)
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
@@ -846,6 +862,7 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     q_app = np.asarray(b.q[m], float)
     q_app[:, 14:16] = grip[m]  # the finger opening of the approach (the simulator uses it)
     att["approach_last_step_rad"] = float(end_gap[m])
+    att["approach_clearance"] = clear[pick[m]]
     return dict(
         q=np.asarray(c["q"], float), cost=c["cost"], lm_result=LMResult._index_to_message[c["lm_result"]],
         iterations=c["iterations"],
