@@ -490,6 +490,8 @@ def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
     for grip in (robot.upper[14], 0.006 + 0.008):
         assert min(clearance(q, grip) for q in plan.q_approach[-2:]) < cfg.collision_margin
     assert min(clearance(q, plan.q_approach[0, 14]) for q in plan.q_approach) >= cfg.collision_margin
+    with pytest.raises(ValueError, match="approach_clearance"):
+        plan_robot(robot, [pts, pts], traj2, T_ROBOT_OBJ, grasps={0: grasps}, config=dataclasses.replace(cfg, approach_clearance=()))
 
 
 @pytest.mark.slow

@@ -136,10 +136,10 @@ class PlanConfig(eqx.Module):
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
     approach_clearance: float | tuple[float | None, ...] | None = (None, 0.01)
-    """Finger openings tried for the approach, widest first: each is the opening beyond the
-    grasp's half-width (m per finger, capped at fully open; None = fully open). Each candidate
-    takes the widest opening whose approach is collision-free; a candidate earlier in the order
-    wins over a wider opening. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open jaw
+    """Finger openings tried for the approach, in this order (list them widest first): each is
+    the opening beyond the grasp's half-width (m per finger, capped at fully open; None = fully
+    open). Each candidate takes the first opening whose approach is collision-free; a candidate
+    earlier in the order wins over a wider opening. Stored in ``RobotPlan.q_approach[:, 14:16]``. A fully open jaw
     (50 mm) around a 4 mm scissors ring puts the open pads onto the neighbouring part, so it
     falls back to 10 mm; with only 10 mm the stapler's tracked-and-registered arm (2–5 mm off,
     sagging on its hinge) met a pad during the demo's approach (16.5 mm disturbance, Grasp
@@ -512,6 +512,9 @@ def plan_robot(
         raise ValueError(f"config.parts {config.parts} out of range for {P} parts")
     if config.bimanual and P < 2 and config.parts is None:
         raise ValueError("bimanual planning needs at least 2 parts")
+    clear = config.approach_clearance if isinstance(config.approach_clearance, tuple) else (config.approach_clearance,)
+    if not clear or any(c is not None and not 0.0 <= c < np.inf for c in clear):
+        raise ValueError(f"config.approach_clearance: expected openings ≥ 0 m or None (fully open), got {config.approach_clearance}")
     nT = T_obj_part.shape[0]
     idx = keyframe_indices(nT, config.num_keyframes)
     K = len(idx)
