@@ -325,17 +325,19 @@ def _run_candidates(
     params: CostParams, robot_eval, coll: _Collide, x0: np.ndarray, target: np.ndarray, active: np.ndarray,
     T_world_part: np.ndarray, mask: np.ndarray, cfg: PlanConfig, acceleration: bool, grip: np.ndarray,
     q_ref: np.ndarray | None = None, ref_weight: np.ndarray | None = None, q_last: np.ndarray | None = None,
-) -> _Batch:
+) -> _Batch | list[_Batch]:
     """Solve and evaluate n candidates in chunks of ``cfg.chunk_size`` (padded); ``grip`` (n, 2)
     is the finger opening (m) used in the collision check; ``q_last`` (n, 16), if given, replaces
-    each solution's last keyframe (before it is evaluated and returned)."""
+    each solution's last keyframe (before it is evaluated and returned). With ``grip`` (n, G, 2)
+    each solution is evaluated at every opening (solved once) and G batches are returned."""
     n = x0.shape[0]
     chunk = max(1, cfg.chunk_size)  # always padded: one compilation per (chunk, keyframes)
     solver = SolverConfig(
         trust_region=TrustRegionConfig(lambda_initial=cfg.lambda_initial),
         termination=TerminationConfig(max_iterations=cfg.max_iterations),
     )
-    outs = []
+    grips = grip if grip.ndim == 3 else grip[:, None]
+    outs: list[list] = [[] for _ in range(grips.shape[1])]
     for s in range(0, n, chunk):
         sl = slice(s, min(s + chunk, n))
         m = sl.stop - sl.start
@@ -351,12 +353,13 @@ def _run_candidates(
         sol = _solve(params, jnp.asarray(xs, jnp.float32), pose, solver, acceleration)
         if q_last is not None:
             sol = eqx.tree_at(lambda r: r.x, sol, sol.x.at[:, -1].set(jnp.asarray(pad(q_last), jnp.float32)))
-        ev = _evaluate(robot_eval, coll, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
-                       jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32),
-                       jnp.asarray(pad(grip), jnp.float32), jnp.asarray(_pad_table_allowance(cfg), jnp.float32))
-        outs.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
-    cat = [np.concatenate(x) for x in zip(*outs)]
-    return _Batch(*cat)
+        for j, out in enumerate(outs):
+            ev = _evaluate(robot_eval, coll, sol.x, pose.target, pose.active, jnp.asarray(T_world_part, jnp.float32),
+                           jnp.asarray(mask), jnp.asarray(cfg.hand_tolerance, jnp.float32),
+                           jnp.asarray(pad(grips[:, j]), jnp.float32), jnp.asarray(_pad_table_allowance(cfg), jnp.float32))
+            out.append([np.asarray(a)[:m] for a in (sol.x, sol.cost, sol.result._value, sol.iterations, *ev)])
+    batches = [_Batch(*[np.concatenate(x) for x in zip(*out)]) for out in outs]
+    return batches if grip.ndim == 3 else batches[0]
 
 
 def _pad_table_allowance(cfg: PlanConfig) -> float:
@@ -820,8 +823,8 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     # segment is checked, so the check sees the configuration the robot will take (with open
     # fingers here).
     q_first = np.stack([np.asarray(c["q"][0], np.float32) for c in cands])
-    # the approach is made with the fingers opened beyond the grasp width: every opening of
-    # ``approach_clearance`` is checked (one batch, candidate-major) and the widest that passes is used
+    # the approach is made with the fingers opened beyond the grasp width: each solved approach is
+    # checked at every opening of ``approach_clearance`` and takes the first that passes
     clear = cfg.approach_clearance if isinstance(cfg.approach_clearance, tuple) else (cfg.approach_clearance,)
     G = len(clear)
     grip = np.full((n, G, 2), open_grip, np.float32)
@@ -829,15 +832,12 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         for a, k, i, g in c["arms"]:
             for j, cl in enumerate(clear):
                 grip[m, j, a] = open_grip if cl is None else min(float(g.width[i]) / 2 + cl, open_grip)
-    rep = lambda x: np.repeat(x, G, 0)  # noqa: E731
-    b_all = _run_candidates(params_a, robot_lite, coll, rep(x0), rep(target), rep(active), T_part0, mask, cfg,
-                            acceleration, grip.reshape(n * G, 2), rep(q_ref), rep(ref_w), q_last=rep(q_first))  # fmt: skip
-    alive_all, _ = _reject(b_all, np.ones(n * G, bool), cfg)
-    alive_all = alive_all.reshape(n, G)
-    # per candidate: its widest passing opening (or, if none passes, the narrowest, for the counts)
+    bs = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
+                         q_ref, ref_w, q_last=q_first)  # fmt: skip
+    alive_all = np.stack([_reject(bj, np.ones(n, bool), cfg)[0] for bj in bs], 1)  # (n, G)
+    # per candidate: its first passing opening (or, if none passes, the last, for the counts)
     pick = np.where(alive_all.any(1), np.argmax(alive_all, 1), G - 1)
-    rows = np.arange(n) * G + pick
-    b = jax.tree.map(lambda f: np.asarray(f)[rows], b_all)
+    b = jax.tree.map(lambda *fs: np.stack(fs, 1)[np.arange(n), pick], *bs)
     grip = grip[np.arange(n), pick]
     alive, counts = _reject(b, np.ones(n, bool), cfg)
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
