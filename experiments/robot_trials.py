@@ -8,7 +8,7 @@ executed in MuJoCo. Success per stage: Init (registration error ≤ thresholds),
 plan), Grasp (held when the motion starts, no slip), Exec (the object's joints end where the demo's
 did and moved the same way).
 
-    python -m experiments.robot_trials [--objects red_box nerf_gun ...] [--yaws 10] [--frames N]
+    python -m experiments.robot_trials [--objects red_box nerf_gun ...] [--yaws 10] [--frames N] [--resume]
 
 The demo is tracked at the object's own frame count (90–120 frames; `--frames N` renders the same
 motion in N frames). `rsrd-jax demo` uses 30 frames to stay within its time budget; on the studio
@@ -57,13 +57,34 @@ def first_failure(stages: dict) -> str | None:
     return None
 
 
-def run(objects: list[str], yaws: int, cfg: PipelineConfig, work: Path) -> dict:
-    results: dict = {"objects": {}, "config": {"yaws": yaws, **{k: v for k, v in vars(cfg).items()}}}
+def reusable(yaw0: Path, cfg: PipelineConfig) -> dict:
+    """The studio / model / track artefacts of an earlier trial 0 in `yaw0` that `--resume` may
+    reuse: each must be complete, and the trajectory must have been tracked with this
+    configuration's `TrackConfig` (its stored config is compared)."""
+    from rsrd_jax.track._track import _config_dict
+
+    out = {}
+    if (yaw0 / "studio" / "object.json").is_file() and (yaw0 / "studio" / "robot_view").is_dir():
+        out["studio_dir"] = yaw0 / "studio"
+        if (yaw0 / "model" / "model.json").is_file():
+            out["model_dir"] = yaw0 / "model"
+            tj = yaw0 / "track" / "trajectory.json"
+            want = json.loads(json.dumps(_config_dict(cfg.track_config())))  # as trajectory.json stores it
+            if tj.is_file() and json.loads(tj.read_text()).get("config") == want:
+                out["track_dir"] = yaw0 / "track"
+    return out
+
+
+def run(objects: list[str], yaws: int, cfg: PipelineConfig, work: Path, resume: bool = False) -> dict:
+    results: dict = {"objects": {}, "config": {"yaws": yaws, "resume": resume, **{k: v for k, v in vars(cfg).items()}}}
     for name in objects:
         t0 = time.perf_counter()
         odir = work / name
         # trial 0 runs every stage (studio, build, track, ...); later trials reuse model + track
-        base = run_pipeline(name, odir / "yaw0", cfg, log=lambda m: print(f"{name}: {m}", flush=True))
+        reuse = reusable(odir / "yaw0", cfg) if resume else {}
+        if reuse:
+            print(f"{name}: reusing {', '.join(str(p) for p in reuse.values())}", flush=True)
+        base = run_pipeline(name, odir / "yaw0", cfg, log=lambda m: print(f"{name}: {m}", flush=True), **reuse)
         studio = odir / "yaw0" / "studio"
         products = json.loads((studio / "object.json").read_text())["products"]
         demo_yaw, yaw0 = float(products["demo"]["yaw_deg"]), float(products["robot_view"]["yaw_deg"])
@@ -85,6 +106,7 @@ def run(objects: list[str], yaws: int, cfg: PipelineConfig, work: Path) -> dict:
         rates = stage_rates(trials)
         results["objects"][name] = {
             "trials": trials, "rates": rates, "tracking_add_obj_mm": base["track"]["add_obj_mean_mm"],
+            "tracking_add_obj_per_part_mm": base["track"]["add_obj_mm"], "reused": sorted(reuse),
             "time_s": round(time.perf_counter() - t0, 1),
         }  # fmt: skip
         atomic_write_json(work / "partial.json", results)
@@ -198,10 +220,13 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default="experiments/work/robot_trials", help="working directory (artefacts)")
     ap.add_argument("--out", default="experiments/results/robot_trials", help="output path stem (.md/.json/.png)")
     ap.add_argument("--no-rerun", action="store_true", help="skip rerun recordings and videos (faster)")
+    ap.add_argument("--resume", action="store_true",
+                    help="reuse each object's trial-0 studio, model and track in --work when complete (the track only "
+                         "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
     a = ap.parse_args(argv)
     objects = a.objects or list_objects()
     cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun)
-    res = run(objects, a.yaws, cfg, Path(a.work))
+    res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
     out = Path(a.out)
     atomic_write_json(out.with_suffix(".json"), res)
     atomic_write_text(out.with_suffix(".md"), markdown(res))

@@ -5,9 +5,12 @@ For each object: make the studio scan + demo, build the ObjectModel from the sca
 `experiments/results/tracking_table.{md,json}`.
 
     python -m experiments.tracking_table [--objects red_box frog ...] [--frames 90] [--quick]
+    python -m experiments.tracking_table --size pipeline --frames 0 --name tracking_pipeline \
+        --ablations "pipeline" "pipeline − hands" "pipeline − motion prior" "pipeline − both"
 
 Mono-depth is the studio's relative-depth ORACLE and hand masks are the studio's ground truth;
-both are labelled in the table.
+both are labelled in the table, as are the studio's 2D fingertips (the "+ hands" rows).
+`--frames 0` tracks each demo at its object's own frame count (90–120).
 """
 
 from __future__ import annotations
@@ -30,20 +33,34 @@ from rsrd_jax.track import (  # noqa: E402
     InitConfig,
     LossWeights,
     StudioDepthOracle,
+    StudioFingertips,
     StudioHandMasks,
     TrackConfig,
     add_metrics,
     track_video,
 )
 
+_PIPE = PipelineConfig()
+_PIPELINE_TRACK = {"steps_per_frame": _PIPE.track_steps, "roi_size": _PIPE.track_roi, "joints": _PIPE.track_joints,
+                   "lr_start": _PIPE.track_lr_start}  # fmt: skip
+_MOTION = LossWeights(motion=_PIPE.track_motion)
 ABLATIONS = {
     "RSRD (ours)": {"weights": LossWeights()},
     "+ joint discovery": {"weights": LossWeights(), "joints": True},
+    "+ hands": {"weights": LossWeights(), "hands": True},
     "no depth": {"weights": LossWeights(depth_rank=0.0)},
     "no ARAP": {"weights": LossWeights(arap=0.0)},
     "photometric only": {"weights": LossWeights(feature=0.0, depth_rank=0.0, arap=0.0, rgb=1.0)},
+    "pipeline": {"weights": _MOTION, **_PIPELINE_TRACK, "hands": _PIPE.track_hands},
+    "pipeline − hands": {"weights": _MOTION, **_PIPELINE_TRACK},
+    "pipeline − motion prior": {"weights": LossWeights(), **_PIPELINE_TRACK, "hands": _PIPE.track_hands},
+    "pipeline − both": {"weights": LossWeights(), **_PIPELINE_TRACK},
 }
-"""TrackConfig options of each row (the rest at their defaults)."""
+"""TrackConfig options of each row (the rest at their defaults); "hands": the hand term with the
+studio's 2D fingertips (oracle); "pipeline": the tracking of `rsrd-jax demo` and the robot trials
+(`PipelineConfig.track_config()`: joint discovery, lr 1e-2, motion prior, hand term), and the
+rows below it without the hand term, the motion prior or both."""
+DEFAULT_ABLATIONS = ["RSRD (ours)", "+ joint discovery", "+ hands", "no depth", "no ARAP", "photometric only"]
 
 
 def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default") -> dict:
@@ -53,9 +70,9 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
         root = work / name
         if not (root / "demo" / "demo.mp4").is_file():
             if size == "pipeline":
-                cfg = StudioConfig(demo_frames=frames, scan_views=pipe.scan_views, scan_size=pipe.scan_size, parts=("scan", "demo"))
+                cfg = StudioConfig(demo_frames=frames or None, scan_views=pipe.scan_views, scan_size=pipe.scan_size, parts=("scan", "demo"))
             else:
-                cfg = StudioConfig(demo_frames=frames, scan_views=24 if quick else 48, parts=("scan", "demo"))
+                cfg = StudioConfig(demo_frames=frames or None, scan_views=24 if quick else 48, parts=("scan", "demo"))
             make_object(name, root, cfg, overwrite=True)
         mdir = root / "model"
         if (mdir / "model.json").is_file():
@@ -64,15 +81,18 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
             bcfg = pipe.build_config() if size == "pipeline" else BuildConfig()  # pipeline: the `rsrd-jax demo` build
             model = build_object_model(root / "scan", bcfg)
             save_object_model(model, mdir)
-        demo = read_demo(root / "demo" / "demo.mp4", max_frames=frames)
+        demo = read_demo(root / "demo" / "demo.mp4", max_frames=frames or None)
         gt = read_demo_gt(root / "demo")
         pts = [model.part_points(k) for k in range(model.num_parts)]
         results[name] = {}
         for ab in ablations:
-            cfg = TrackConfig(**{"smooth_iters": 10 if quick else 30, **ABLATIONS[ab]})
+            opts = dict(ABLATIONS[ab])
+            tips = StudioFingertips(root / "demo") if opts.pop("hands", False) else None
+            cfg = TrackConfig(**{"smooth_iters": 10 if quick else 30, **opts})
+            init = InitConfig(iters=pipe.init_iters) if size == "pipeline" else InitConfig()
             t0 = time.perf_counter()
-            traj = track_video(model, demo, cfg, InitConfig(), StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),
-                               separable=studio_separable(root))
+            traj = track_video(model, demo, cfg, init, StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),
+                               separable=studio_separable(root), fingertips=tips)  # fmt: skip
             m = add_metrics(traj.T_cam_world_part, gt["T_cam_world_part"][: traj.num_frames], pts)
             results[name][ab] = {
                 "add_obj_mm": m["mean_add_obj_mm"],
@@ -81,6 +101,8 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
                 "seconds": time.perf_counter() - t0,
                 "frames_per_second": traj.meta["frames_per_second"],
                 "timings_s": traj.meta["timings_s"],
+                "fingertips": traj.meta["fingertips"],
+                "frames": traj.num_frames,
             }
             print(name, ab, f"ADD(obj) {m['mean_add_obj_mm']:.2f} mm, ADD(cam) {m['mean_add_mm']:.2f} mm", flush=True)
     return results
@@ -89,7 +111,8 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
 def table(results: dict, ablations: list[str]) -> str:
     lines = [
         "Tracking ADD (mm, object-frame alignment on frame 0; camera-frame ADD in brackets). "
-        "Mono-depth: studio relative-depth ORACLE; hand masks: studio ground truth.",
+        "Mono-depth: studio relative-depth ORACLE; hand masks: studio ground truth; "
+        "\"+ hands\" rows: the studio's 2D fingertips (ORACLE for a 2D hand detector).",
         "",
         "| method | " + " | ".join(results) + " | mean |",
         "|---|" + "---|" * (len(results) + 1),
@@ -115,8 +138,9 @@ def main() -> None:
     enable_compilation_cache()
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--objects", nargs="+", default=list_objects())
-    p.add_argument("--frames", type=int, default=90)
-    p.add_argument("--ablations", nargs="+", default=list(ABLATIONS), choices=list(ABLATIONS))
+    p.add_argument("--frames", type=int, default=90, help="demo frames (0: each object's own 90–120)")
+    p.add_argument("--ablations", nargs="+", default=DEFAULT_ABLATIONS, choices=list(ABLATIONS))
+    p.add_argument("--name", default="tracking_table", help="results file name (experiments/results/NAME.md/.json)")
     p.add_argument("--quick", action="store_true", help="fewer views and smoothing iterations")
     p.add_argument("--size", choices=("default", "pipeline"), default="default",
                    help="scan and build: default (48 views 320×240, BuildConfig()) or the `rsrd-jax demo` sizes")  # fmt: skip
@@ -124,8 +148,8 @@ def main() -> None:
     a = p.parse_args()
     res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size)
     out = Path(__file__).resolve().parent / "results"
-    atomic_write_json(out / "tracking_table.json", res)
-    atomic_write_text(out / "tracking_table.md", table(res, a.ablations))
+    atomic_write_json(out / f"{a.name}.json", res)
+    atomic_write_text(out / f"{a.name}.md", table(res, a.ablations))
     print(table(res, a.ablations))
     print(json.dumps({o: {k: round(v["add_obj_mm"], 2) for k, v in r.items()} for o, r in res.items()}))
 

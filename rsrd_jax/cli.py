@@ -162,7 +162,7 @@ def cmd_track(a: argparse.Namespace) -> int:
     from .parts import load_object_model
     from .track import (
         InitConfig, LossWeights, NoMonoDepth, NoOccluder, OnnxDepthAnything, StudioDepthOracle,
-        StudioHandMasks, TrackConfig, track_video,
+        StudioFingertips, StudioHandMasks, TrackConfig, track_video,
     )  # fmt: skip
     from .viz import log_tracking, overlay_frames
     from .io import write_video
@@ -181,12 +181,14 @@ def cmd_track(a: argparse.Namespace) -> int:
         mono = NoMonoDepth()
     else:
         mono = OnnxDepthAnything(a.mono_depth)
-    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb, support=a.w_support)
+    fingertips = StudioFingertips(demo_dir, noise_px=a.hand_noise, seed=a.seed) if a.hands == "studio" else None
+    weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb, support=a.w_support,
+                          hand=a.w_hand, motion=a.w_motion)  # fmt: skip
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
                       slides=not a.no_slides, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
-    traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable)
+    traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable, fingertips=fingertips)
     save_trajectory(traj, out)
     t = traj.meta["timings_s"]
     print(f"tracked {traj.num_frames} frames × {traj.num_parts} parts -> {out / 'trajectory.npz'}")
@@ -412,6 +414,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="hand masks: the studio's ground truth (oracle) or none")  # fmt: skip
     tr.add_argument("--mono-depth", default="none",
                     help="'studio-oracle' (labelled oracle), 'none', or a Depth-Anything ONNX file")  # fmt: skip
+    tr.add_argument("--hands", choices=("studio", "none"), default="none",
+                    help="2D fingertips for the hand term: the studio's projected keypoints (oracle) or none")  # fmt: skip
+    tr.add_argument("--hand-noise", type=float, default=0.0, help="with --hands studio: Gaussian pixel noise on the fingertips")
+    tr.add_argument("--w-hand", type=float, default=0.01,
+                    help="hand term weight: each hand's pinched part point follows its fingertips' midpoint (needs --hands)")  # fmt: skip
+    tr.add_argument("--w-motion", type=float, default=0.0,
+                    help="per-frame motion prior weight: squared pose update away from the extrapolated guess (rsrd-jax demo: 0.1)")  # fmt: skip
     tr.add_argument("--roi-size", type=int, default=224, help="ROI crop side in pixels")
     tr.add_argument("--steps", type=int, default=50, help="Adam steps per frame")
     tr.add_argument("--smooth-iters", type=int, default=30, help="joint smoothing iterations (0: off)")

@@ -12,9 +12,10 @@ artefact from disk (as the separate CLI commands do) and writes its own under `o
     out/sim/         sim.json / sim.npz (+ sim.mp4, sim.rrd)
     out/summary.json stage results, metrics and times
 
-Nothing downstream reads ground truth: tracking uses the studio's hand masks and relative-depth
-oracle (labelled as oracles), planning uses hand keypoints given in the demo camera's frame (the
-output a hand detector would give) moved into the object frame by the *tracked* object pose, and
+Nothing downstream reads ground truth: tracking uses the studio's hand masks, 2D fingertips and
+relative-depth oracle (labelled as oracles), planning uses hand keypoints given in the demo
+camera's frame (the output a hand detector would give) moved into the object frame by the
+*tracked* object pose, and
 the plan is made for the *registered* object pose while the simulation places the object at its
 true pose. Ground truth is only read to score the stages.
 """
@@ -67,6 +68,15 @@ class PipelineConfig:
     discovery, object-frame ADD per part: stapler 2.6 / 6.0 → 2.1 / 4.5 mm, red_box 2.4 / 10.2
     → 2.8 / 7.5, sunglasses 1.3 / 56.4 / 8.0 → 1.9 / 32.6 / 4.5, frog mean 6.9 → 7.1, nerf_gun
     3.3 / 17.8 → 2.8 / 20.8."""
+    track_hands: bool = True
+    """Tracking's hand term (`LossWeights.hand`) with the studio's 2D fingertips (an oracle for a
+    2D hand detector, `track.StudioFingertips`): each hand's pinched part point follows the
+    midpoint of its thumb and index tips."""
+    track_hand_noise_px: float = 0.0
+    """Gaussian pixel noise on the studio's fingertips (a detector's error)."""
+    track_motion: float = 0.1
+    """Tracking's per-frame motion prior (`LossWeights.motion`; RSRD has none, the library
+    default is 0): a part the data say little about stays where the extrapolation put it."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
@@ -97,6 +107,13 @@ class PipelineConfig:
 
         return BuildConfig(fit=FitConfig(iterations=self.fit_iterations, max_gaussians=self.max_gaussians, seed=self.seed),
                            field=FieldConfig(iterations=self.field_iterations, seed=self.seed))  # fmt: skip
+
+    def track_config(self):
+        """The `TrackConfig` of the pipeline's tracking stage (also used by the experiments)."""
+        from .track import LossWeights, TrackConfig
+
+        return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
+                           lr_start=self.track_lr_start, weights=LossWeights(motion=self.track_motion))  # fmt: skip
 
 
 def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.ndarray:
@@ -181,7 +198,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     from .robot import load_yumi
     from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan, with_init
     from .studio import StudioConfig, make_object
-    from .track import InitConfig, StudioDepthOracle, StudioHandMasks, TrackConfig, add_metrics, track_video
+    from .track import InitConfig, StudioDepthOracle, StudioFingertips, StudioHandMasks, add_metrics, track_video
     from .track import read_robot_view, register_object, registration_error
 
     out = Path(out)
@@ -225,11 +242,11 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     if track_dir is None:
         track_dir = out / "track"
         with _stage("track", rep, log):
-            tcfg = TrackConfig(steps_per_frame=cfg.track_steps, roi_size=cfg.track_roi, seed=cfg.seed, joints=cfg.track_joints,
-                               lr_start=cfg.track_lr_start)  # fmt: skip
+            tcfg = cfg.track_config()
+            tips = StudioFingertips(studio_dir / "demo", cfg.track_hand_noise_px, cfg.seed) if cfg.track_hands else None
             traj = track_video(model, demo, tcfg, InitConfig(iters=cfg.init_iters),
                                StudioHandMasks(studio_dir / "demo"), StudioDepthOracle(studio_dir / "demo", seed=cfg.seed),
-                               separable=studio_separable(studio_dir))  # fmt: skip
+                               separable=studio_separable(studio_dir), fingertips=tips)  # fmt: skip
             save_trajectory(traj, track_dir)
             if cfg.rerun:
                 from .viz import log_tracking, overlay_frames

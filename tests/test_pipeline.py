@@ -5,6 +5,7 @@ checks the stages connect through their on-disk artefacts and that the summary r
 stage honestly against the studio's ground truth.
 """
 
+import dataclasses
 import json
 
 import numpy as np
@@ -79,6 +80,30 @@ def test_robot_trial_rates_are_cumulative():
     assert "| a | 2/2 | 2/2 | 1/2 | 1/2 | 1/2 |" in markdown(res)
 
 
+def test_robot_trials_resume_reuses_only_complete_artefacts_tracked_with_this_config(tmp_path):
+    """`--resume` reuses trial 0's studio and model when they are complete, and its track only if
+    its stored TrackConfig is the pipeline's: a track made with another motion-prior weight is
+    tracked again."""
+    from experiments.robot_trials import reusable
+    from rsrd_jax.track._track import _config_dict
+
+    cfg = PipelineConfig()
+    y0 = tmp_path / "yaw0"
+    assert reusable(y0, cfg) == {}
+    (y0 / "studio" / "robot_view").mkdir(parents=True)
+    (y0 / "studio" / "object.json").write_text("{}")
+    assert reusable(y0, cfg) == {"studio_dir": y0 / "studio"}
+    (y0 / "model").mkdir()
+    (y0 / "model" / "model.json").write_text("{}")
+    (y0 / "track").mkdir()
+    other = dataclasses.replace(cfg, track_motion=cfg.track_motion + 1.0)
+    (y0 / "track" / "trajectory.json").write_text(json.dumps({"config": _config_dict(other.track_config())}))
+    assert set(reusable(y0, cfg)) == {"studio_dir", "model_dir"}
+    (y0 / "track" / "trajectory.json").write_text(json.dumps({"config": _config_dict(cfg.track_config())}))
+    assert reusable(y0, cfg)["track_dir"] == y0 / "track"
+    assert cfg.track_config().weights.motion == cfg.track_motion and cfg.track_config().joints == cfg.track_joints
+
+
 def test_the_studio_separable_flag_reaches_tracking(tmp_path):
     """A scan does not say whether the parts come apart: the pipeline takes it from the studio's
     object.json (usb_plug: separable; red_box: attached), and `rsrd-jax track` from --separable /
@@ -101,3 +126,21 @@ def test_the_studio_separable_flag_reaches_tracking(tmp_path):
     assert p.parse_args(base).separable is None
     assert p.parse_args(base + ["--separable"]).separable is True
     assert p.parse_args(base + ["--no-separable"]).separable is False
+
+
+def test_track_cli_hand_options_match_the_library():
+    """`rsrd-jax track`'s hand and motion-prior options: off unless asked for (no fingertip source), the weight's
+    default is the library's, and bad values are argparse errors."""
+    from rsrd_jax.cli import build_parser
+    from rsrd_jax.track import LossWeights
+
+    p = build_parser()
+    base = ["track", "m", "v", "--out", "o"]
+    a = p.parse_args(base)
+    assert a.hands == "none" and a.w_hand == LossWeights().hand and a.hand_noise == 0.0
+    assert a.w_motion == LossWeights().motion
+    a = p.parse_args(base + ["--hands", "studio", "--hand-noise", "2.5", "--w-hand", "0.03", "--w-motion", "0.1"])
+    assert (a.hands, a.hand_noise, a.w_hand, a.w_motion) == ("studio", 2.5, 0.03, 0.1)
+    with pytest.raises(SystemExit):
+        p.parse_args(base + ["--hands", "mediapipe"])
+    assert PipelineConfig().track_hands is True

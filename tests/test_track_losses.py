@@ -6,7 +6,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from rsrd_jax.track import arap_loss, barron_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations, support_loss
+from rsrd_jax.track import arap_loss, barron_loss, hand_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations, support_loss
 
 
 def test_barron_special_cases():
@@ -333,3 +333,112 @@ def test_support_plane_is_required_and_checked_when_the_term_is_on():
     assert _support_plane(types.SimpleNamespace(meta={"support_plane": [0, 0, 1, 0.01]}), on) == [0.0, 0.0, 1.0, 0.01]
     with pytest.raises(ValueError, match="unit normal"):
         _support_plane(types.SimpleNamespace(meta={}), TrackConfig(weights=LossWeights(support=1.0), support_plane=(0, 0, 2, 0)))
+
+
+def _hand_scene():
+    """Two parts (a box and a lid-like plate in front of it) seen by a camera 0.3 m away."""
+    from rsrd_jax.geometry import Intrinsics
+
+    K = Intrinsics.create(200.0, 200.0, 64.0, 48.0, 128, 96)
+    T_cam_obj = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_x_radians(0.2), jnp.array([0.01, -0.02, 0.3]))
+    T_obj_part = jaxlie.SE3.exp(jnp.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.01, 0.0, -0.005, 0.3, -0.1, 0.2]]))
+    return K, T_cam_obj, T_obj_part
+
+
+def _project_np(K, T_cam_obj, T_obj_part, parts, points):
+    M_co = np.asarray(T_cam_obj.as_matrix(), np.float64)
+    M_op = np.asarray(T_obj_part.as_matrix(), np.float64)[np.asarray(parts)]
+    x = np.einsum("kij,kj->ki", M_op[:, :3, :3], points) + M_op[:, :3, 3]
+    c = x @ M_co[:3, :3].T + M_co[:3, 3]
+    return np.stack([float(K.fx) * c[:, 0] / c[:, 2] + float(K.cx), float(K.fy) * c[:, 1] / c[:, 2] + float(K.cy)], 1)
+
+
+def test_hand_loss_is_zero_on_the_fingertips_barron_off_them_and_its_gradient_matches_fd():
+    """The held points projected (independently, in numpy) onto their fingertips give zero; a
+    fingertip moved by d pixels gives Barron's closed form (α = 0: log(½(d/c)² + 1)) averaged over
+    the weighted fingertips; an unweighted fingertip adds nothing; the gradient in a part's
+    tangent space equals central finite differences."""
+    K, T_co, T_op = _hand_scene()
+    parts = jnp.array([1, 1, 0])
+    points = np.array([[0.01, -0.02, 0.003], [-0.01, 0.015, 0.0], [0.0, 0.0, 0.02]])
+    uv = _project_np(K, T_co, T_op, parts, points)
+    w = jnp.array([1.0, 1.0, 0.0])
+    args = (K, parts, jnp.asarray(points, jnp.float32))
+    assert float(hand_loss(T_op, T_co, *args, jnp.asarray(uv, jnp.float32), w, 0.0, 0.5)) == pytest.approx(0.0, abs=1e-6)
+    moved = uv + np.array([[3.0, 4.0], [0.0, -2.0], [50.0, 50.0]])  # the third is unweighted
+    c = 0.5
+    want = np.mean(np.log(0.5 * (np.array([5.0, 2.0]) / c) ** 2 + 1))
+    got = float(hand_loss(T_op, T_co, *args, jnp.asarray(moved, jnp.float32), w, 0.0, c))
+    assert got == pytest.approx(want, rel=1e-3)
+
+    def f(d):
+        T = jaxlie.SE3(T_op.wxyz_xyz) @ jaxlie.SE3.exp(jnp.zeros((2, 6)).at[1].set(d))
+        return hand_loss(T, T_co, *args, jnp.asarray(moved, jnp.float32), w, 0.0, c)
+
+    d0 = jnp.array([0.002, -0.001, 0.001, 0.02, 0.01, -0.03])
+    g = np.asarray(jax.grad(f)(d0))
+    fd = np.array([(float(f(d0.at[i].add(1e-4))) - float(f(d0.at[i].add(-1e-4)))) / 2e-4 for i in range(6)])
+    np.testing.assert_allclose(g, fd, rtol=2e-2, atol=2e-2 * np.abs(fd).max())
+    # only the held part is pulled (the weighted fingertips hold part 1)
+    g_all = jax.grad(lambda d: hand_loss(T_op @ jaxlie.SE3.exp(d), T_co, *args, jnp.asarray(moved, jnp.float32), w, 0.0, c))(jnp.zeros((2, 6)))
+    assert float(jnp.abs(g_all[0]).max()) == 0.0 < float(jnp.abs(g_all[1]).max())
+
+
+def test_hand_anchor_picks_the_part_under_the_fingertip_and_its_point(rng):
+    """Anchoring on a synthetic two-part model: a fingertip over part 1 only is anchored to part
+    1 at the opacity-weighted mean of its Gaussians near the ray (brute force); a fingertip that
+    projects onto nothing, or is not detected, stays unanchored; an anchored fingertip keeps its
+    anchor on later frames."""
+    from types import SimpleNamespace
+
+    from rsrd_jax.geometry import project_points
+    from rsrd_jax.splat import Gaussians, rest_part_poses
+    from rsrd_jax.track._dpm import FrameObs
+    from rsrd_jax.track._hands import HandAnchors, update_hand_anchors, with_hand_anchors
+
+    K, T_co, _ = _hand_scene()
+    a = rng.uniform(-0.02, 0.02, (300, 3)) * [1, 1, 0.5]
+    b = rng.uniform(-0.01, 0.01, (200, 3)) + [0.04, 0.0, 0.0]
+    means = np.concatenate([a, b])
+    ids = np.r_[np.zeros(300, np.int32), np.ones(200, np.int32)]
+    opl = rng.normal(0.0, 1.0, len(means))
+    g = Gaussians.create(means, np.tile([1.0, 0, 0, 0], (len(means), 1)), np.full((len(means), 3), -5.0), opl, np.zeros((len(means), 3)), part_ids=ids)
+    cents = np.stack([a.mean(0), b.mean(0)])
+    tm = SimpleNamespace(gaussians=g, part_centroids=jnp.asarray(cents, jnp.float32), num_parts=2)
+    T_rest = rest_part_poses(jnp.asarray(cents, jnp.float32))
+    tip_obj = np.array([[0.045, 0.003, 0.0]])
+    tip = np.asarray(project_points(K, T_co @ jnp.asarray(tip_obj, jnp.float32))[0])
+    uv = np.stack([tip[0], [5.0, 5.0], tip[0]])  # over part 1; over nothing; over part 1 but undetected
+    z = jnp.zeros(3)
+    obs = FrameObs(intrinsics=K, features=jnp.zeros((4, 4, 2)), weight=jnp.ones((4, 4)), rgb=jnp.zeros((4, 4, 3)), mono=jnp.zeros((4, 4)),
+                   bg_feature=jnp.zeros(2), bg_rgb=jnp.zeros(3), hand_uv=jnp.asarray(uv, jnp.float32), hand_seen=jnp.array([1.0, 1.0, 0.0]),
+                   hand_part=jnp.zeros(3, jnp.int32), hand_point=jnp.zeros((3, 3)), hand_weight=z)  # fmt: skip
+    r = 6.0
+    anchors = update_hand_anchors(HandAnchors.empty(3), tm, T_rest, T_co, obs, t=2, radius_cells=r)
+    assert anchors.part.tolist() == [1, -1, -1] and anchors.frame.tolist() == [2, -1, -1]
+    puv = np.asarray(project_points(K, T_co @ jnp.asarray(means, jnp.float32))[0])
+    near = (np.linalg.norm(puv - tip[0], axis=1) < r) & (ids == 1)
+    op = 1 / (1 + np.exp(-opl))
+    want = np.average(means[near] - cents[1], axis=0, weights=op[near])
+    np.testing.assert_allclose(anchors.point[0], want, atol=1e-5)
+    # the anchored fingertip is weighted in the hand term; the others are not
+    o2 = with_hand_anchors(obs, anchors)
+    assert np.asarray(o2.hand_weight).tolist() == [1.0, 0.0, 0.0] and int(o2.hand_part[0]) == 1
+    # a later frame does not move an existing anchor
+    moved = FrameObs(**{**{k: getattr(obs, k) for k in obs.__dataclass_fields__}, "hand_uv": jnp.asarray(uv + 30.0, jnp.float32)})
+    again = update_hand_anchors(anchors, tm, T_rest, T_co, moved, t=5, radius_cells=r)
+    np.testing.assert_array_equal(again.point, anchors.point)
+    assert again.frame.tolist() == [2, -1, -1]
+
+
+def test_motion_prior_counts_translations_in_object_radii():
+    """The per-frame motion prior is the mean over parts of ‖δ / step_scale‖²: zero for no update,
+    a 2 cm shift of a part of a 4 cm-radius object weighs as much as a 0.5 rad turn."""
+    from rsrd_jax.track._dpm import motion_prior
+
+    scale = jnp.array([0.04, 0.04, 0.04, 1.0, 1.0, 1.0])
+    assert float(motion_prior(jnp.zeros((3, 6)), scale)) == 0.0
+    shift = jnp.zeros((2, 6)).at[0, 1].set(0.02)
+    turn = jnp.zeros((2, 6)).at[1, 5].set(0.5)
+    assert float(motion_prior(shift, scale)) == pytest.approx(0.125, rel=1e-5)
+    assert float(motion_prior(shift, scale)) == pytest.approx(float(motion_prior(turn, scale)), rel=1e-5)

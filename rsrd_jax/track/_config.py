@@ -34,6 +34,20 @@ class LossWeights(eqx.Module):
     object-frame ADD grows from 4.7 / 7.6 to 5.8 / 8.4 mm."""
 
 
+    hand: float = 0.01
+    """Hand term (`hand_loss`): the point of the part each hand pinches projects onto the midpoint
+    of its detected thumb and index tips (needs a `FingertipSource`; not in RSRD, which uses
+    hands only to pick the parts to grasp)."""
+
+
+    motion: float = 0.0
+    """Per-frame motion prior: the mean over parts of the squared tangent update away from the
+    frame's initial guess (translations in object radii, rotations in radians). Where the data
+    say little (a thin part's roll about its own axis, a part under the hand) the part stays
+    where the extrapolation put it instead of wandering. Not in RSRD; per-frame solve only (the
+    smoothing pass has its own smoothness term)."""
+
+
 class TrackConfig(eqx.Module):
     """Options of `track_video` (4D-DPM). Every field is documented; the CLI exposes them."""
 
@@ -70,6 +84,10 @@ class TrackConfig(eqx.Module):
     red_box, frog and nerf_gun. See `track._joints`."""
     joint_first_arap: float = 0.005
     """ARAP weight of the first pass (the second uses `weights.arap`)."""
+    joint_first_motion: float = 0.0
+    """Motion-prior weight of the first pass (the second uses `weights.motion`): the first pass
+    must let parts move freely to reveal their joints (with `weights.motion` 0.1 in it too, the
+    nerf gun's slide was fitted a hinge point and no slide hypothesis was tried: 3.9 → 19.4 mm)."""
     joint_first_steps: int | None = 25
     """Adam steps per frame of the first pass (None: `steps_per_frame`). Measured on 30-frame
     demos (pipeline-size builds): 25 steps gave stapler 2.6 / 6.0 mm, red_box 2.4 / 10.2 mm,
@@ -93,6 +111,13 @@ class TrackConfig(eqx.Module):
     slide ADD 11.9 mm with one start, 3.3 mm with 1.0."""
     slide_min_m: float = 0.005
     """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
+    hand_anchor_cells: float = 1.0
+    """Hand term: a hand is anchored to the part with the largest share of the Gaussians
+    projecting within this many feature cells of its pinch point (`track._hands`)."""
+    hand_scale_cells: float = 0.5
+    """Barron scale c of the hand term's reprojection distance, feature cells."""
+    hand_alpha: float = 0.0
+    """Barron α of the hand term (0: Cauchy; a hand that left its part pulls ever less)."""
     velocity_factor: float = 0.2
     """Initial guess of a frame: previous pose composed with this fraction of the last motion."""
     velocity_hypothesis: float | None = None

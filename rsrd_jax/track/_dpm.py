@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, support_loss, touch_loss
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_loss, pose_smoothness, prismatic_loss, support_loss, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -240,6 +240,17 @@ class FrameObs(eqx.Module):
     """Feature assigned to pixels the object does not cover."""
     bg_rgb: Float[Array, "3"]
     """Colour assigned to pixels the object does not cover."""
+    hand_uv: Float[Array, "k 2"]
+    """Each hand's pinch point (midpoint of its detected thumb and index tips, `FingertipSource`)
+    in ROI-grid pixels (0 where not detected)."""
+    hand_seen: Float[Array, " k"]
+    """1 where the hand's two fingertips were detected in this frame."""
+    hand_part: Int[Array, " k"]
+    """Part each hand pinches (`track._hands`; meaningful where `hand_weight` > 0)."""
+    hand_point: Float[Array, "k 3"]
+    """The pinched point, in that part's frame (metres from its rest centroid)."""
+    hand_weight: Float[Array, " k"]
+    """Weight of each hand in the hand term: detected and anchored (0 otherwise)."""
 
 
 class Weights(eqx.Module):
@@ -254,6 +265,11 @@ class Weights(eqx.Module):
     step_scale: Float[Array, "6"]
     """Per tangent coordinate step multiplier: translations in units of the object radius."""
     support: Float[Array, ""]
+    hand: Float[Array, ""]
+    hand_alpha: Float[Array, ""]
+    hand_scale: Float[Array, ""]
+    """Barron scale of the hand term, ROI-grid pixels (feature cells)."""
+    motion: Float[Array, ""]
 
     @staticmethod
     def from_config(cfg, separable: bool, object_radius: float) -> Weights:
@@ -262,7 +278,8 @@ class Weights(eqx.Module):
         w = cfg.weights
         ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
         scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
-        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale, f(w.support))
+        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale,
+                       f(w.support), f(w.hand), f(cfg.hand_alpha), f(cfg.hand_scale_cells), f(w.motion))  # fmt: skip
 
 
 def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
@@ -297,15 +314,23 @@ def frame_objective(
     l_slide = prismatic_loss(T_obj_part, tm.part_centroids, tm.slide_parts, tm.slide_axes, tm.slide_lengths,
                              tm.slide_weight, w.arap_alpha, w.arap_scale)  # fmt: skip
     l_support = support_loss(r.means, tm.gaussians.means, tm.support_plane, w.arap_scale)
+    l_hand = hand_loss(T_obj_part, T_cam_obj, obs.intrinsics, obs.hand_part, obs.hand_point, obs.hand_uv, obs.hand_weight,
+                       w.hand_alpha, w.hand_scale)  # fmt: skip
     total = (w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide) + w.touch * l_touch
-             + w.support * l_support)
+             + w.support * l_support + w.hand * l_hand)
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "support": l_support, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "support": l_support, "hand": l_hand, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
+
+
+def motion_prior(delta: Float[Array, "p 6"], step_scale: Float[Array, "6"]) -> Float[Array, ""]:
+    """Mean over parts of ‖δ / step_scale‖²: the squared tangent update of a frame's solve, its
+    translations in object radii (`LossWeights.motion`)."""
+    return jnp.mean(jnp.sum((delta / step_scale) ** 2, axis=-1))
 
 
 def lr_schedule(lr0, lr1, n: int) -> Float[Array, " n"]:
@@ -334,7 +359,8 @@ def solve_frame(
 
     def loss_fn(delta, k):
         T = compose_update(T_init, delta, tm.part_pivots)
-        return frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs)
+        loss, aux = frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs)
+        return loss + w.motion * motion_prior(delta, w.step_scale), aux
 
     def step(carry, xs):
         delta, state = carry

@@ -7,6 +7,8 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, Bool, Float, Int
 
+from ..geometry import project_points
+
 
 def barron_loss(x: Float[Array, "*b"], alpha: Float[Array, ""] | float, c: Float[Array, ""] | float) -> Float[Array, "*b"]:
     """Barron's general robust loss ρ(x, α, c) (CVPR 2019, eq. 1), smooth in α.
@@ -135,6 +137,31 @@ def prismatic_loss(
     ang = jnp.linalg.norm(rel.rotation().log() + 1e-12, axis=-1)
     per = barron_loss(jnp.linalg.norm(perp + 1e-12, axis=-1), alpha, scale) + barron_loss(ang * lengths, alpha, scale)
     return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def hand_loss(
+    T_obj_part: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    intrinsics,
+    parts: Int[Array, " k"],
+    points: Float[Array, "k 3"],
+    uv: Float[Array, "k 2"],
+    weight: Float[Array, " k"],
+    alpha: Float[Array, ""] | float,
+    scale: Float[Array, ""] | float,
+) -> Float[Array, ""]:
+    """Hand term: each anchored hand k pinches the point `points[k]` of part `parts[k]` (part
+    frame), so that point projects onto the hand's detected pinch point `uv[k]` (pixels of
+    `intrinsics`). Barron's loss of the reprojection distance at `scale` pixels, weighted mean
+    over the hands (`weight` 0: not detected or not anchored). Only the image position is used:
+    a monocular detector's hand depth is not trusted."""
+    T = jaxlie.SE3(T_obj_part.wxyz_xyz[parts])
+    pc = T_cam_obj @ (T @ points)
+    ok = pc[:, 2] > 1e-3  # behind the camera: no pull
+    pred, _ = project_points(intrinsics, jnp.where(ok[:, None], pc, jnp.array([0.0, 0.0, 1.0])))
+    r = jnp.linalg.norm(pred - uv + 1e-9, axis=-1)
+    w = weight * ok
+    return jnp.sum(w * barron_loss(r, alpha, scale)) / jnp.maximum(jnp.sum(w), 1.0)
 
 
 def pose_smoothness(T: jaxlie.SE3, valid: Bool[Array, " t"] | None = None) -> Float[Array, ""]:

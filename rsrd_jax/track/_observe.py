@@ -7,6 +7,7 @@ segmenter or depth network plugs in beside the studio's oracles.
 from __future__ import annotations
 
 import abc
+import json
 from pathlib import Path
 
 import cv2
@@ -118,6 +119,76 @@ class OnnxDepthAnything(MonoDepthSource):
         return 1.0 / np.maximum(out, 1e-6) if self.disparity else out
 
 
+class FingertipSource(abc.ABC):
+    """Per-frame 2D fingertips of the demonstrator's hands (thumb and index tip of each hand), as
+    a 2D hand detector gives them (MediaPipe, HaMeR's 2D keypoints). The tracker's hand term pins
+    the part each hand pinches to the midpoint of its two fingertips (`track._hands`)."""
+
+    name: str = "fingertips"
+
+    @property
+    @abc.abstractmethod
+    def num_hands(self) -> int:
+        """Hands per frame (fixed for a video)."""
+
+    @abc.abstractmethod
+    def __call__(self, t: int, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(uv, detected) of frame `t`: `num_hands`×2×2 pixel coordinates (thumb tip, index tip) in
+        the full frame (pixel centres at +0.5) and a `num_hands`×2 bool mask of the detected ones."""
+
+
+class NoFingertips(FingertipSource):
+    name = "none"
+
+    @property
+    def num_hands(self) -> int:
+        return 1
+
+    def __call__(self, t: int, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros((1, 2, 2), np.float32), np.zeros((1, 2), bool)
+
+
+class StudioFingertips(FingertipSource):
+    """ORACLE: the studio's projected fingertips (`demo/gt/hand_keypoints.npz`, `keypoints_uv`
+    T×H×2×2), optionally with Gaussian pixel noise (a detector's error, `noise_px` standard
+    deviation per coordinate). A fingertip counts as detected when it projects into the image,
+    also when something hides it: a 2D hand detector infers hidden fingertips from the rest of
+    the hand. Label it as an oracle in reports."""
+
+    name = "studio fingertips (oracle)"
+
+    def __init__(self, demo_dir: str | Path, noise_px: float = 0.0, seed: int = 0):
+        p = Path(demo_dir) / "gt" / "hand_keypoints.npz"
+        if not p.is_file():
+            raise ArtefactError(f"studio hand keypoints not found: {p}")
+        with np.load(p) as z:
+            if "keypoints_uv" not in z.files:
+                raise ArtefactError(f"{p}: field 'keypoints_uv' missing (expected the studio's hand keypoints)")
+            uv = np.asarray(z["keypoints_uv"], np.float64)
+        if uv.ndim != 4 or uv.shape[2:] != (2, 2):
+            raise ArtefactError(f"{p}: keypoints_uv must be T×H×2×2 (frames, hands, thumb/index, uv), got {uv.shape}")
+        if noise_px < 0 or not np.isfinite(noise_px):
+            raise ValueError(f"noise_px must be a finite value ≥ 0, got {noise_px}")
+        cam = p.parent.parent / "camera.json"
+        size = json.loads(cam.read_text()) if cam.is_file() else {}
+        w, h = float(size.get("w", np.inf)), float(size.get("h", np.inf))
+        rng = np.random.default_rng(seed)
+        self.uv = (uv + rng.normal(0.0, noise_px, uv.shape)).astype(np.float32)
+        self.detected = np.isfinite(uv).all(-1) & (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & (uv[..., 1] < h)
+        self.noise_px = float(noise_px)
+        if noise_px > 0:
+            self.name = f"studio fingertips (oracle, {noise_px:g} px noise)"
+
+    @property
+    def num_hands(self) -> int:
+        return int(self.uv.shape[1])
+
+    def __call__(self, t: int, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if not 0 <= t < len(self.uv):
+            raise ArtefactError(f"studio hand keypoints: frame {t} requested, the file has {len(self.uv)} frames")
+        return self.uv[t], self.detected[t]
+
+
 def model_extractor(model, extractor=None):
     """The feature extractor for `model` (rebuilt from its `feature_backend` when None), checked
     against the model's PCA input dimension.
@@ -141,7 +212,8 @@ class Observer:
     """Builds `FrameObs` for a video: ROI crop -> extractor -> PCA, plus masks and mono-depth."""
 
     def __init__(self, extractor, pca, intrinsics: Intrinsics, roi_size: int,
-                 occluder: OccluderSource | None = None, mono: MonoDepthSource | None = None):  # fmt: skip
+                 occluder: OccluderSource | None = None, mono: MonoDepthSource | None = None,
+                 fingertips: FingertipSource | None = None):  # fmt: skip
         self.extractor, self.pca, self.K = extractor, pca, intrinsics
         self.roi = int(roi_size)
         self.grid = tuple(int(x) for x in extractor.output_shape(self.roi, self.roi))
@@ -149,6 +221,7 @@ class Observer:
             raise ValueError(f"feature grid of a square ROI must be square, got {self.grid}")
         self.occluder = occluder or NoOccluder()
         self.mono = mono or NoMonoDepth()
+        self.fingertips = fingertips or NoFingertips()
 
     @property
     def grid_size(self) -> int:
@@ -174,6 +247,14 @@ class Observer:
         sel = ring & (weight > 0)
         bg = np.median(feats[sel], axis=0) if sel.any() else np.median(feats.reshape(-1, feats.shape[-1]), axis=0)
         bg_rgb = np.median(rgb[sel], axis=0) if sel.any() else np.median(rgb.reshape(-1, 3), axis=0)
+        # each hand's pinch point (the midpoint of its thumb and index tips, both detected) in
+        # ROI-grid pixels; the anchors are set by the tracker (`track._hands`)
+        H = self.fingertips.num_hands
+        tips, det = self.fingertips(t, frame)
+        tips = np.asarray(tips, np.float64).reshape(H, 2, 2)
+        seen = (np.asarray(det, bool).reshape(H, 2) & np.isfinite(tips).all(-1)).all(-1)
+        x0, y0, side = box
+        tips_grid = np.where(seen[:, None], (np.nan_to_num(tips).mean(1) - [x0, y0]) * (g / side), 0.0)
         return FrameObs(
             intrinsics=self.grid_intrinsics(box),
             features=jnp.asarray(feats),
@@ -182,4 +263,9 @@ class Observer:
             mono=jnp.asarray(mono),
             bg_feature=jnp.asarray(bg, jnp.float32),
             bg_rgb=jnp.asarray(bg_rgb, jnp.float32),
+            hand_uv=jnp.asarray(tips_grid, jnp.float32),
+            hand_seen=jnp.asarray(seen, jnp.float32),
+            hand_part=jnp.zeros(len(seen), jnp.int32),
+            hand_point=jnp.zeros((len(seen), 3), jnp.float32),
+            hand_weight=jnp.zeros(len(seen), jnp.float32),
         )

@@ -20,7 +20,8 @@ from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
 from ._joints import fit_joint_point, is_slide_candidate, joint_slots, slide_axes, with_joint_slots
 from ._init import initialize_pose
-from ._observe import model_extractor, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+from ._hands import HandAnchors, update_hand_anchors, with_hand_anchors
+from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
 
 
 class _Pass(NamedTuple):
@@ -39,6 +40,8 @@ class _Pass(NamedTuple):
     switched: int
     """Frames where the second start won."""
     key: jax.Array
+    anchors: HandAnchors
+    """Fingertip anchors at the end of the pass."""
 
 
 def _roi_for(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, K, margin: float):
@@ -60,6 +63,7 @@ def track_video(
     progress: bool = True,
     log=None,
     T_cam_obj_init: jaxlie.SE3 | None = None,
+    fingertips: FingertipSource | None = None,
 ) -> PartTrajectory:
     """Tracks every part of `model` through `demo` (4D-DPM, RSRD §4).
 
@@ -75,6 +79,7 @@ def track_video(
         log: optional callback `log(stage, t, dict)` (rerun logging in the CLI).
         T_cam_obj_init: a known object pose on frame 0 (e.g. from another registration); skips
             the initialisation.
+        fingertips: 2D fingertip detections for the hand term (default none: no hand term).
 
     Returns:
         PartTrajectory with per-frame part poses, object pose, residuals and metadata
@@ -93,7 +98,7 @@ def track_video(
         separable = bool(model.meta.get("separable", False))
     K = demo.intrinsics
     t_start = time.perf_counter()
-    obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono)
+    obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono, fingertips)
     voxel = None
     if config.lod_cells:
         mp = np.asarray(model.gaussians.means)
@@ -135,6 +140,7 @@ def track_video(
     rcfg = choose_config(posed0, Camera(obsr.grid_intrinsics(box0), T_cam_obj), headroom=2.0)
     key = jax.random.key(config.seed)
 
+    use_hands = fingertips is not None and config.weights.hand > 0
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
 
     def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
@@ -142,13 +148,14 @@ def track_video(
         obs_all, residual, visible, losses, data, logged = [], [], [], [], [], []
         switched = 0  # frames where the second start won
         solve_s: list[float] = []
+        anchors = HandAnchors.empty(obsr.fingertips.num_hands)
         bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
         for t in bar:
             prev = T_parts[-1] if T_parts else rest
             prev2 = T_parts[-2] if len(T_parts) > 1 else None
             T_guess = extrapolate(prev, prev2, config.velocity_factor)
             box = _roi_for(tm, T_guess, T_cam_obj, K, config.roi_margin)
-            obs = obsr.observe(t, demo.frames[t], box)
+            obs = with_hand_anchors(obsr.observe(t, demo.frames[t], box), anchors)
             key, sub = jax.random.split(key)
             tf = time.perf_counter()
             T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
@@ -161,17 +168,19 @@ def track_video(
                     switched += 1
             T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
             solve_s.append(time.perf_counter() - tf)
+            if use_hands:
+                anchors = update_hand_anchors(anchors, tm, T, T_cam_obj, obs, t, config.hand_anchor_cells)
             T_parts.append(T)
             obs_all.append(obs)
             residual.append(np.asarray(aux["part_residual"]))
             visible.append(np.asarray(aux["part_visible"]))
             losses.append(float(aux["loss"]))
-            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"]))
+            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"] + w.hand * aux["hand"]))
             bar.set_postfix(loss=f"{losses[-1]:.3g}")
             if log is not None and record:
                 logged.append(("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux}))
         compile_s[0] += _first_call_excess(solve_s)
-        return _Pass(T_parts, obs_all, residual, visible, losses, data, logged, switched, key)
+        return _Pass(T_parts, obs_all, residual, visible, losses, data, logged, switched, key, anchors)
 
     t_frames = time.perf_counter()
     joint_info: dict = {}
@@ -249,6 +258,8 @@ def track_video(
         "render_capacity": rcfg.capacity,
         "occluder": getattr(obsr.occluder, "name", "?"),
         "mono_depth": getattr(obsr.mono, "name", "?"),
+        "fingertips": getattr(obsr.fingertips, "name", "?") if use_hands else "none",
+        "hand_anchors": best.anchors.summary() if use_hands else [],
         "separable": separable,
         "support_plane": plane,
         "config": _config_dict(config),
@@ -282,11 +293,13 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     use = 1.0 if config.contact_pivots else 0.0  # contact_pivots=False: every part turns about its centroid
     tm_a = eqx.tree_at(lambda m: (m.arap_weight, m.part_pivots), tm,
                        (jnp.asarray(band_w), jnp.asarray(use * contact_pivots(means, ids, pairs, band_w, cents, P), jnp.float32)))  # fmt: skip
-    w_a = eqx.tree_at(lambda x: (x.arap, x.arap_alpha), w, (jnp.asarray(config.joint_first_arap, jnp.float32), jnp.asarray(-2.0, jnp.float32)))
+    w_a = eqx.tree_at(lambda x: (x.arap, x.arap_alpha, x.motion), w, (jnp.asarray(config.joint_first_arap, jnp.float32), jnp.asarray(-2.0, jnp.float32),
+                                                                    jnp.asarray(config.joint_first_motion, jnp.float32)))  # fmt: skip
     steps = config.joint_first_steps or config.steps_per_frame
     lrs_a = lr_schedule(config.lr_start, config.lr_end, steps)
-    T_a, *_, key = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False, lrs=lrs_a)
-    T_a = np.stack([np.asarray(T.wxyz_xyz) for T in T_a])
+    first = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False, lrs=lrs_a)
+    key = first.key
+    T_a = np.stack([np.asarray(T.wxyz_xyz) for T in first.T_parts])
     # second pass: jointed parts tied only at their joint; others keep the weak band
     weak = config.joint_first_arap / max(float(config.weights.arap), 1e-12)
     pw = np.where(is_slot, 0.0, weak).astype(np.float32)

@@ -1,0 +1,107 @@
+"""Hand anchors: which part point each demonstrator's hand pinches, for the tracker's hand term.
+
+A hand moves with the part it pinches, and it is what hides that part from the feature loss
+(the occluder mask removes hand pixels). The pinch point of a hand is the midpoint of its
+detected thumb and index tips: the fingers sit on either side of the pinched part, so the
+midpoint is the image of a point inside it (a fingertip alone is a finger radius or more off
+the surface, in depth too, which biases the part's rotation as it turns: on the studio red box a
+per-fingertip anchor took the lid from 14 to 24 mm). A hand is anchored on the first frame where
+its pinch point lies over the object: the part with the largest opacity-weighted share of the
+Gaussians projecting within `radius` feature cells of it holds it, and the held point is the
+opacity-weighted mean of that part's Gaussians there (part frame: the centre of the part's
+cross-section along the ray, since a 2D detection does not give the depth). From the next frame
+on the hand term (`hand_loss`) pulls that point's projection onto the pinch point. Anchors are
+kept for the rest of the video: a release (the hand letting go) is not detected; the robust loss
+bounds the pull of a hand that moved away.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+
+from ..geometry import project_points
+from ..splat import apply_part_poses
+from ._dpm import FrameObs
+
+
+@dataclasses.dataclass
+class HandAnchors:
+    """Host-side anchor state of a video's hands (k = hands per frame)."""
+
+    part: np.ndarray
+    """(k,) held part (−1: not anchored)."""
+    point: np.ndarray
+    """(k, 3) held point in the part's frame, metres."""
+    frame: np.ndarray
+    """(k,) frame on which each fingertip was anchored (−1: not anchored)."""
+
+    @staticmethod
+    def empty(k: int) -> HandAnchors:
+        return HandAnchors(-np.ones(k, np.int64), np.zeros((k, 3)), -np.ones(k, np.int64))
+
+    @property
+    def anchored(self) -> np.ndarray:
+        return self.part >= 0
+
+    def summary(self) -> list[dict]:
+        """Per hand: part, frame and point (mm) of its anchor, for the trajectory's metadata."""
+        return [
+            {"part": int(p), "frame": int(f), "point_mm": [round(float(v) * 1e3, 2) for v in x]} if p >= 0 else {"part": None}
+            for p, f, x in zip(self.part, self.frame, self.point)
+        ]
+
+
+def with_hand_anchors(obs: FrameObs, anchors: HandAnchors) -> FrameObs:
+    """`obs` with the anchors' parts and points and the hand term's weights (detected in this
+    frame and anchored)."""
+    a = anchors.anchored
+    w = np.asarray(obs.hand_seen) * a
+    return FrameObs(
+        intrinsics=obs.intrinsics, features=obs.features, weight=obs.weight, rgb=obs.rgb, mono=obs.mono,
+        bg_feature=obs.bg_feature, bg_rgb=obs.bg_rgb, hand_uv=obs.hand_uv, hand_seen=obs.hand_seen,
+        hand_part=jnp.asarray(np.where(a, anchors.part, 0), jnp.int32), hand_point=jnp.asarray(anchors.point, jnp.float32),
+        hand_weight=jnp.asarray(w, jnp.float32),
+    )  # fmt: skip
+
+
+def update_hand_anchors(
+    anchors: HandAnchors,
+    tm,
+    T_obj_part: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    obs: FrameObs,
+    t: int,
+    radius_cells: float,
+    min_gaussians: int = 3,
+) -> HandAnchors:
+    """Anchors every hand detected in `obs` that has no anchor yet, at the solved part poses
+    `T_obj_part` of frame `t` (see the module docstring). `tm` is a `TrackModel` (its
+    `gaussians`, `part_centroids` and `num_parts` are used). Returns a new `HandAnchors`."""
+    seen = np.asarray(obs.hand_seen) > 0
+    todo = seen & ~anchors.anchored
+    if not todo.any():
+        return anchors
+    posed = apply_part_poses(tm.gaussians, T_obj_part, tm.part_centroids)
+    uv, z = project_points(obs.intrinsics, T_cam_obj @ posed.means)
+    uv, z = np.asarray(uv, np.float64), np.asarray(z)
+    ids = np.asarray(tm.gaussians.part_ids)
+    op = np.asarray(jax.nn.sigmoid(tm.gaussians.opacity_logits), np.float64)
+    local = np.asarray(tm.gaussians.means, np.float64) - np.asarray(tm.part_centroids, np.float64)[ids]
+    tips = np.asarray(obs.hand_uv, np.float64)
+    out = HandAnchors(anchors.part.copy(), anchors.point.copy(), anchors.frame.copy())
+    for k in np.flatnonzero(todo):
+        near = (np.linalg.norm(uv - tips[k], axis=1) < radius_cells) & (z > 0) & (op > 0.05)
+        if near.sum() < min_gaussians:
+            continue
+        share = np.bincount(ids[near], weights=op[near], minlength=tm.num_parts)
+        p = int(np.argmax(share))
+        sel = near & (ids == p)
+        out.part[k] = p
+        out.point[k] = np.average(local[sel], axis=0, weights=op[sel])
+        out.frame[k] = t
+    return out
