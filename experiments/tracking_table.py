@@ -16,6 +16,7 @@ both are labelled in the table, as are the studio's 2D fingertips (the "+ hands"
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -41,9 +42,6 @@ from rsrd_jax.track import (  # noqa: E402
 )
 
 _PIPE = PipelineConfig()
-_PIPELINE_TRACK = {"steps_per_frame": _PIPE.track_steps, "roi_size": _PIPE.track_roi, "joints": _PIPE.track_joints,
-                   "lr_start": _PIPE.track_lr_start}  # fmt: skip
-_MOTION = LossWeights(motion=_PIPE.track_motion)
 ABLATIONS = {
     "RSRD (ours)": {"weights": LossWeights()},
     "+ joint discovery": {"weights": LossWeights(), "joints": True},
@@ -51,16 +49,25 @@ ABLATIONS = {
     "no depth": {"weights": LossWeights(depth_rank=0.0)},
     "no ARAP": {"weights": LossWeights(arap=0.0)},
     "photometric only": {"weights": LossWeights(feature=0.0, depth_rank=0.0, arap=0.0, rgb=1.0)},
-    "pipeline": {"weights": _MOTION, **_PIPELINE_TRACK, "hands": _PIPE.track_hands},
-    "pipeline − hands": {"weights": _MOTION, **_PIPELINE_TRACK},
-    "pipeline − motion prior": {"weights": LossWeights(), **_PIPELINE_TRACK, "hands": _PIPE.track_hands},
-    "pipeline − both": {"weights": LossWeights(), **_PIPELINE_TRACK},
+    "pipeline": {"pipeline": True, "hands": _PIPE.track_hands},
+    "pipeline − hands": {"pipeline": True},
+    "pipeline − motion prior": {"pipeline": True, "weights": LossWeights(), "hands": _PIPE.track_hands},
+    "pipeline − both": {"pipeline": True, "weights": LossWeights()},
 }
 """TrackConfig options of each row (the rest at their defaults); "hands": the hand term with the
-studio's 2D fingertips (oracle); "pipeline": the tracking of `rsrd-jax demo` and the robot trials
-(`PipelineConfig.track_config()`: joint discovery, lr 1e-2, motion prior, hand term), and the
-rows below it without the hand term, the motion prior or both."""
+studio's 2D fingertips (oracle); "pipeline": start from the tracking of `rsrd-jax demo` and the
+robot trials (`PipelineConfig.track_config()`: joint discovery, lr 1e-2, motion prior; with the
+hand term) instead of the library defaults, and the rows below it without the hand term, the
+motion prior or both."""
 DEFAULT_ABLATIONS = ["RSRD (ours)", "+ joint discovery", "+ hands", "no depth", "no ARAP", "photometric only"]
+
+
+def row_config(ablation: str, quick: bool = False) -> tuple[TrackConfig, bool]:
+    """The TrackConfig of an `ABLATIONS` row and whether it uses the studio's fingertips."""
+    opts = dict(ABLATIONS[ablation])
+    hands = bool(opts.pop("hands", False))
+    base = _PIPE.track_config() if opts.pop("pipeline", False) else TrackConfig()
+    return dataclasses.replace(base, **{"smooth_iters": 10 if quick else base.smooth_iters, **opts}), hands
 
 
 def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default") -> dict:
@@ -86,9 +93,8 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
         pts = [model.part_points(k) for k in range(model.num_parts)]
         results[name] = {}
         for ab in ablations:
-            opts = dict(ABLATIONS[ab])
-            tips = StudioFingertips(root / "demo") if opts.pop("hands", False) else None
-            cfg = TrackConfig(**{"smooth_iters": 10 if quick else 30, **opts})
+            cfg, hands = row_config(ab, quick)
+            tips = StudioFingertips(root / "demo") if hands else None
             init = InitConfig(iters=pipe.init_iters) if size == "pipeline" else InitConfig()
             t0 = time.perf_counter()
             traj = track_video(model, demo, cfg, init, StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),

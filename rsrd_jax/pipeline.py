@@ -15,9 +15,8 @@ artefact from disk (as the separate CLI commands do) and writes its own under `o
 Nothing downstream reads ground truth: tracking uses the studio's hand masks, 2D fingertips and
 relative-depth oracle (labelled as oracles), planning uses hand keypoints given in the demo
 camera's frame (the output a hand detector would give) moved into the object frame by the
-*tracked* object pose, and
-the plan is made for the *registered* object pose while the simulation places the object at its
-true pose. Ground truth is only read to score the stages.
+*tracked* object pose, and the plan is made for the *registered* object pose while the
+simulation places the object at its true pose. Ground truth is only read to score the stages.
 """
 
 from __future__ import annotations

@@ -104,6 +104,22 @@ def test_robot_trials_resume_reuses_only_complete_artefacts_tracked_with_this_co
     assert cfg.track_config().weights.motion == cfg.track_motion and cfg.track_config().joints == cfg.track_joints
 
 
+def test_tracking_table_pipeline_rows_are_the_pipelines_tracking():
+    """The table's "pipeline" row tracks as `rsrd-jax demo` does (`PipelineConfig.track_config()`,
+    with the studio fingertips), its ablations drop the hand term or the motion prior, and the
+    RSRD rows keep the library defaults."""
+    from experiments.tracking_table import row_config
+    from rsrd_jax.track import LossWeights, TrackConfig
+
+    pipe = PipelineConfig()
+    assert row_config("pipeline") == (pipe.track_config(), pipe.track_hands)
+    cfg, hands = row_config("pipeline − both")
+    assert not hands and cfg.weights == LossWeights() and cfg.joints == pipe.track_joints and cfg.lr_start == pipe.track_lr_start
+    assert row_config("pipeline − hands") == (pipe.track_config(), False)
+    assert row_config("RSRD (ours)") == (TrackConfig(), False)
+    assert row_config("no ARAP", quick=True)[0].smooth_iters == 10 and row_config("no ARAP")[0].weights.arap == 0.0
+
+
 def test_the_studio_separable_flag_reaches_tracking(tmp_path):
     """A scan does not say whether the parts come apart: the pipeline takes it from the studio's
     object.json (usb_plug: separable; red_box: attached), and `rsrd-jax track` from --separable /

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -38,7 +39,7 @@ class HandAnchors:
     point: np.ndarray
     """(k, 3) held point in the part's frame, metres."""
     frame: np.ndarray
-    """(k,) frame on which each fingertip was anchored (−1: not anchored)."""
+    """(k,) frame on which each hand was anchored (−1: not anchored)."""
 
     @staticmethod
     def empty(k: int) -> HandAnchors:
@@ -60,13 +61,9 @@ def with_hand_anchors(obs: FrameObs, anchors: HandAnchors) -> FrameObs:
     """`obs` with the anchors' parts and points and the hand term's weights (detected in this
     frame and anchored)."""
     a = anchors.anchored
-    w = np.asarray(obs.hand_seen) * a
-    return FrameObs(
-        intrinsics=obs.intrinsics, features=obs.features, weight=obs.weight, rgb=obs.rgb, mono=obs.mono,
-        bg_feature=obs.bg_feature, bg_rgb=obs.bg_rgb, hand_uv=obs.hand_uv, hand_seen=obs.hand_seen,
-        hand_part=jnp.asarray(np.where(a, anchors.part, 0), jnp.int32), hand_point=jnp.asarray(anchors.point, jnp.float32),
-        hand_weight=jnp.asarray(w, jnp.float32),
-    )  # fmt: skip
+    return eqx.tree_at(lambda o: (o.hand_part, o.hand_point, o.hand_weight), obs,
+                       (jnp.asarray(np.where(a, anchors.part, 0), jnp.int32), jnp.asarray(anchors.point, jnp.float32),
+                        jnp.asarray(np.asarray(obs.hand_seen) * a, jnp.float32)))  # fmt: skip
 
 
 def update_hand_anchors(

@@ -7,7 +7,6 @@ segmenter or depth network plugs in beside the studio's oracles.
 from __future__ import annotations
 
 import abc
-import json
 from pathlib import Path
 
 import cv2
@@ -15,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry import Intrinsics, box_intrinsics, crop, full_frame_box, roi_box  # noqa: F401 (re-exported)
-from ..io import ArtefactError, read_depth_png, read_label_png
+from ..io import ArtefactError, read_camera_json, read_depth_png, read_label_png
 from ._dpm import FrameObs
 
 
@@ -169,13 +168,11 @@ class StudioFingertips(FingertipSource):
             raise ArtefactError(f"{p}: keypoints_uv must be T×H×2×2 (frames, hands, thumb/index, uv), got {uv.shape}")
         if noise_px < 0 or not np.isfinite(noise_px):
             raise ValueError(f"noise_px must be a finite value ≥ 0, got {noise_px}")
-        cam = p.parent.parent / "camera.json"
-        size = json.loads(cam.read_text()) if cam.is_file() else {}
-        w, h = float(size.get("w", np.inf)), float(size.get("h", np.inf))
+        K = read_camera_json(Path(demo_dir) / "camera.json")  # the image bounds of "detected"
         rng = np.random.default_rng(seed)
         self.uv = (uv + rng.normal(0.0, noise_px, uv.shape)).astype(np.float32)
-        self.detected = np.isfinite(uv).all(-1) & (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & (uv[..., 1] < h)
-        self.noise_px = float(noise_px)
+        self.detected = (np.isfinite(uv).all(-1) & (uv[..., 0] >= 0) & (uv[..., 0] < K.width)
+                         & (uv[..., 1] >= 0) & (uv[..., 1] < K.height))  # fmt: skip
         if noise_px > 0:
             self.name = f"studio fingertips (oracle, {noise_px:g} px noise)"
 
