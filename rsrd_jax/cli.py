@@ -272,7 +272,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     if (out / "plan.npz").exists() and not a.overwrite:
         print(f"error: {out / 'plan.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
-    hands = None
+    hands = hand_parts = None
     mesh_points = None
     if a.studio_gt:
         inp = studio_plan_inputs(a.studio_gt)
@@ -297,19 +297,24 @@ def cmd_plan(a: argparse.Namespace) -> int:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
         T_robot_obj = _parse_object_pose(a.object_pose)
+        from .pipeline import anchored_hand_parts
+
+        hand_parts = anchored_hand_parts(traj)
     if a.hands == "none":
-        hands = None
+        hands = hand_parts = None
     cfg = PlanConfig(
-        num_keyframes=a.keyframes, bimanual=a.bimanual, parts=tuple(a.parts) if a.parts else None,
+        num_keyframes=a.keyframes, bimanual={"auto": "auto", "yes": True, "no": False}[a.bimanual], parts=tuple(a.parts) if a.parts else None,
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
+        grasp_position_tolerance=a.grasp_pos_tol, grasp_rotation_tolerance_deg=a.grasp_rot_tol,
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
     )  # fmt: skip
     t0 = time.perf_counter()
     robot = load_yumi()
-    plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points)
+    plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
+                      hand_parts=hand_parts)  # fmt: skip
     save_plan(plan, out)
     print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
     if a.rerun and plan.success:
@@ -336,7 +341,9 @@ def cmd_simulate(a: argparse.Namespace) -> int:
         return 2
     try:
         plan = load_plan(a.plan)
-        cfg = SimConfig(root=a.root, start=a.start, joint_speed=a.joint_speed)
+        if not 0.0 <= a.seat_shift < float("inf"):
+            raise ValueError(f"--seat-shift: expected a shift ≥ 0 m, got {a.seat_shift}")
+        cfg = SimConfig(root=a.root, start=a.start, joint_speed=a.joint_speed, seat_max_shift=a.seat_shift)
         t0 = time.perf_counter()
         res = simulate_plan(plan, a.studio, cfg, video=a.video, progress=not a.quiet)
         paths = save_sim_result(res, out, fps=cfg.fps)
@@ -483,7 +490,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' ±1σ extents, not their centres (thin parts)")
     pl.add_argument("--keyframes", type=int, default=50, help="keyframes of the joint trajectory")
-    pl.add_argument("--bimanual", action="store_true", help="plan both arms on a ranked (left, right) part pair")
+    pl.add_argument("--bimanual", choices=("auto", "yes", "no"), default="auto",
+                    help="plan both arms on a ranked (left, right) part pair: yes, no, or auto (when both of the "
+                         "demonstrator's hands touch distinct parts, one of which moved; falls back to one arm)")
     pl.add_argument("--parts", type=int, nargs="+", default=None, help="parts to use (default: ranked)")
     pl.add_argument("--max-parts", type=int, default=2, help="ranked parts (pairs) tried")
     pl.add_argument("--hands", choices=("studio", "none"), default="studio",
@@ -497,6 +506,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--max-candidates", type=int, default=480, help="seated grasp candidates solved per part and arm")
     pl.add_argument("--pos-tol", type=float, default=0.01, help="TCP position tolerance at every keyframe (m)")
     pl.add_argument("--rot-tol", type=float, default=10.0, help="TCP rotation tolerance (degrees)")
+    pl.add_argument("--grasp-pos-tol", type=float, default=0.003,
+                    help="TCP position tolerance at the first keyframe, the grasp (m)")
+    pl.add_argument("--grasp-rot-tol", type=float, default=5.0,
+                    help="TCP rotation tolerance at the first keyframe, the grasp (degrees)")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,
@@ -524,6 +537,9 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--start", choices=("pregrasp", "home"), default="pregrasp",
                     help="start at the plan's pre-grasp (default) or at home with an unplanned transit")  # fmt: skip
     sm.add_argument("--joint-speed", type=float, default=0.8, help="largest commanded arm joint speed (rad/s)")
+    sm.add_argument("--seat-shift", type=float, default=0.01, metavar="M",
+                    help="compliant seating: largest shift (m) the arm yields along the jaw axis while the jaw "
+                         "closes, kept through the motion (0: a stiff arm, the jaw stalls on the first finger)")
     sm.add_argument("--quiet", action="store_true", help="no progress bar")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing sim.json")
     sm.set_defaults(func=cmd_simulate)

@@ -87,7 +87,8 @@ class PipelineConfig:
     """Build the grasp meshes from the Gaussians' extents (`ObjectModel.part_extent_points`)
     instead of their centres: the studio sunglasses' 4 mm arms have their centres on a sheet
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
-    trials."""
+    trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
+    the jaw (Grasp fails)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -142,6 +143,17 @@ def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.
     kc = kw[:n] @ T_cw[:3, :3].T + T_cw[:3, 3]
     T_oc = np.linalg.inv(T_co[:n])
     return np.einsum("tij,thkj->thki", T_oc[:, :3, :3], kc) + T_oc[:, None, None, :3, 3]
+
+
+def anchored_hand_parts(traj) -> tuple[int, int] | None:
+    """The (left hand, right hand) parts the tracker's hand term anchored (``trajectory.json``'s
+    ``hand_anchors``), or None unless both hands were anchored.
+
+    The planner's bimanual decision takes these: the anchors are found in 2D (the part under each
+    pinch point), while the 3D fingertips moved into the object frame by the tracked pose inherit
+    its depth error (1–8 %; on the frog both hands then lie 19–26 mm from the legs they hold)."""
+    parts = [a.get("part") for a in traj.meta.get("hand_anchors", [])]
+    return (int(parts[0]), int(parts[1])) if len(parts) == 2 and None not in parts else None
 
 
 def studio_separable(studio_dir: Path) -> bool:
@@ -286,15 +298,17 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         mesh_points = None
         if cfg.plan_extent_meshes:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
+        hand_parts = anchored_hand_parts(traj)
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
-                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin), mesh_points=mesh_points)  # fmt: skip
+                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin),
+                          mesh_points=mesh_points, hand_parts=hand_parts)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
             from .plan import log_plan
 
             log_plan(load_yumi(), plan, part_points, traj.T_obj_part, out / "plan" / "plan.rrd")
         rep["plan"].update(result=plan.result_name, message=plan.message, parts=np.asarray(plan.part).tolist(),
-                           rejections=plan.info.get("rejections"))  # fmt: skip
+                           rejections=plan.info.get("rejections"), bimanual=plan.info.get("bimanual"))  # fmt: skip
         rep["plan"]["summary"] = f"{plan.result_name} ({plan.message})"
 
     # ---- simulate the plan with the object at its TRUE pose

@@ -153,6 +153,8 @@ def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
     assert err.max() < 0.01
     ang = np.linalg.norm(np.asarray((T_tgt.rotation().inverse() @ tcp.rotation()).log()), axis=-1)
     assert ang.max() < np.deg2rad(10)
+    # the grasp itself (first keyframe) within the tighter grasp tolerances
+    assert err[0] <= CFG.grasp_position_tolerance and ang[0] <= np.deg2rad(CFG.grasp_rotation_tolerance_deg)
     assert plan.q_video.shape == (len(traj), 16)
     np.testing.assert_allclose(plan.q_video[plan.keyframe_indices], plan.q_keyframes, atol=1e-9)
     assert np.all(plan.min_distance >= 0)
@@ -189,6 +191,12 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     assert rej["grasp_invalid"] == 2 and rej["pose_error"] == 6
     save_plan(plan, tmp_path / "far")
     assert load_plan(tmp_path / "far").result == "unreachable"
+    # a grasp tolerance no solution meets: every solved candidate is rejected at pose_error
+    tight = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(6, 0)},
+                       config=dataclasses.replace(CFG, grasp_position_tolerance=1e-7))
+    assert tight.result == PlanResult.unreachable
+    rej = tight.info["attempts"][0]["rejections"]["right"]
+    assert rej["pose_error"] > 0 and rej["joint_limits"] == rej["collision"] == 0
     none = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(0, 8)}, config=CFG)
     assert none.result == PlanResult.no_grasp and "grasp" in none.message
     with pytest.raises(ValueError, match="T_obj_part"):
@@ -274,15 +282,25 @@ def test_bimanual_plan_couples_both_arms(robot):
     tr2 = tr.copy()
     tr2[..., 5] += 0.36
     traj = np.concatenate([tr, tr2], 1)
-    cfg = PlanConfig(num_keyframes=4, approach_steps=4, chunk_size=8, max_iterations=40, parts=(1, 0), bimanual=True,
-                     approach_candidates=4, top_k_per_arm=2)  # fmt: skip
-    plan = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(8), 1: _grasps(8)}, config=cfg)
+    # the pair comes from the hands (left hand on part 1, right on part 0), bimanual="auto"
+    cfg = PlanConfig(num_keyframes=4, approach_steps=4, chunk_size=8, max_iterations=40, approach_candidates=4,
+                     top_k_per_arm=2)  # fmt: skip
+    assert cfg.bimanual == "auto"
+    grasps = {0: _grasps(8), 1: _grasps(8)}
+    plan = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg, hand_parts=(1, 0))
     assert plan.success, plan.info
+    assert plan.info["bimanual"]["bimanual"] is True and "parts 1 (left) and 0 (right)" in plan.info["bimanual"]["reason"]
     assert plan.part.tolist() == [0, 1] and plan.active.all()
     assert np.all(plan.position_error < 0.01) and np.all(plan.rotation_error < np.deg2rad(10))
     assert plan.min_distance[0] >= 0  # no arm-arm collision
     gap = np.abs(plan.q_approach[-2] - plan.q_approach[-1]).max()
     assert gap < 0.3  # approach stays on the trajectory's null-space branch
+    # both hands on one part: single-arm
+    one = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg, hand_parts=(1, 1))
+    assert one.info["bimanual"]["bimanual"] is False and "single-arm" in one.info["bimanual"]["reason"]
+    assert one.active.sum() <= 1
+    with pytest.raises(ValueError, match="hand_parts"):
+        plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg, hand_parts=(0, 2))
 
 
 @pytest.mark.slow
@@ -530,7 +548,7 @@ def test_spread_grasps_come_after_the_best_scored_ones():
     n = 6
     b = _Batch(q=np.zeros((n, 3, 16)), cost=np.array([5.0, 1.0, 3.0, 0.5, 2.0, 4.0]), lm_result=np.zeros(n, int),
                iterations=np.zeros(n, int), pos=np.zeros((n, 2)), rot=np.zeros((n, 2)), viol=np.zeros(n),
-               mins=np.zeros((n, 3)))  # fmt: skip
+               mins=np.zeros((n, 3)), pos0=np.zeros(n), rot0=np.zeros(n))  # fmt: skip
     alive = np.array([True, True, False, True, True, True])
     per_arm = [(0, 1, b, alive, np.zeros((n, 3, 2, 7)), None)]
     args = (None, None, None, None, PlanConfig(), False, 0.025, {}, {})
@@ -539,3 +557,45 @@ def test_spread_grasps_come_after_the_best_scored_ones():
     assert [c["tier"] for c in tiered] == [0, 0, 1, 1, 1]
     by_cost = _combine(per_arm, *args, {})  # no spread set (grasps given): cost order
     assert [c["arms"][0][2] for c in by_cost] == [3, 1, 4, 5, 0] and all(c["tier"] == 0 for c in by_cost)
+
+
+def test_auto_bimanual_needs_both_hands_on_distinct_parts_one_moved():
+    """``bimanual="auto"``: both hands touch distinct parts (contact distance within
+    ``bimanual_contact``) and one of them moved → bimanual; otherwise single-arm, with the reason."""
+    from rsrd_jax.hands import rank_parts
+    from rsrd_jax.plan._search import _two_hands
+
+    rng = np.random.default_rng(0)
+    box = lambda size, c, n: np.asarray(c) + rng.uniform(-0.5, 0.5, (n, 3)) * np.asarray(size)  # noqa: E731
+    parts = [box((0.3, 0.1, 0.02), (0, 0, 0), 600), box((0.03, 0.03, 0.05), (-0.12, 0, 0.04), 150),
+             box((0.03, 0.03, 0.05), (0.12, 0, 0.04), 150)]  # fmt: skip
+    nT = 12
+    poses = np.zeros((nT, 3, 7), np.float32)
+    poses[..., 0] = 1.0
+    poses[:, 2, 6] = np.linspace(0.0, 0.05, nT)  # handle b (part 2) is lifted 5 cm
+    tips = np.full((nT, 2, 2, 3), np.nan, np.float32)
+    for t in range(nT):  # left hand pinches handle b as it moves, right hand holds handle a
+        tips[t, 0] = [[0.12, 0.016, 0.05 + poses[t, 2, 6]], [0.12, -0.016, 0.05 + poses[t, 2, 6]]]
+        tips[t, 1] = [[-0.12, 0.016, 0.05], [-0.12, -0.016, 0.05]]
+
+    def decide(tp, T=poses):
+        rk = rank_parts(parts, T, tp)
+        m = np.asarray(rk.relative_motion)
+        return _two_hands(rk, m >= 0.2 * max(m.max(), 1e-12), 0.012)
+
+    ok, why = decide(tips)
+    assert ok and "bimanual" in why and "part 2" in why and "part 1" in why
+    away = tips.copy()
+    away[:, 1, :, 1] += 0.05  # right hand 5 cm off handle a
+    ok, why = decide(away)
+    assert not ok and "not both within 12 mm" in why
+    same = tips.copy()
+    same[:, 1] = same[:, 0]  # both hands on handle b
+    ok, why = decide(same)
+    assert not ok and "both hands on one part" in why
+    still = poses.copy()
+    still[:, 2, 6] = 0.0
+    tips_still = tips.copy()
+    tips_still[:, 0, :, 2] = 0.05
+    assert not decide(tips_still, still)[0] and "neither part moved" in decide(tips_still, still)[1]
+    assert not decide(tips[:, :1])[0]  # one hand

@@ -106,21 +106,35 @@ def test_wrong_part_fails_at_grasp_stage(stapler, gt_plan):
 
 
 def test_off_centre_pinch_on_a_welded_part(stapler, gt_plan):
-    """With the root welded the hinged arm cannot shift along the jaw axis, so the coupled jaw
-    stalls on the first finger: 4 mm off-centre leaves a ~2 mm gap at the other finger (a pinch,
-    within pad_gap; the soft contacts and hinge absorb the rest), 8 mm leaves > 5 mm (no pinch)."""
+    """With the root welded the hinged arm cannot shift along the jaw axis, so without compliance
+    the coupled jaw stalls on the first finger: 4 mm off-centre leaves a ~2 mm gap at the other
+    finger (a pinch, within pad_gap; the soft contacts and hinge absorb the rest), 8 mm leaves
+    > 5 mm (no pinch). Compliant seating yields to the fingers' net force and centres the 8 mm
+    grasp (both pads press, the shift ≈ the offset), and the part then follows the demo."""
     obj = load_sim_object(stapler)
     from rsrd_jax.sim._scene import _mat
 
     jaw_axis = _mat(gt_plan.tcp_target[0, 0])[:3, 0]  # right arm's TCP x at the grasp
-    cfg = SimConfig(root="weld")
-    near = simulate_plan(oracle_plan(obj, grasp_offset=0.004 * jaw_axis), obj, cfg, progress=False)
+    stiff = SimConfig(root="weld", seat_max_shift=0.0)
+    near = simulate_plan(oracle_plan(obj, grasp_offset=0.004 * jaw_axis), obj, stiff, progress=False)
     assert near.stages["grasp"], near.reasons
     gaps = sorted(near.metrics["grasp"]["pad_gap_mm"]["right"])
     assert gaps[0] <= 0.0 and 0.5 < gaps[1] <= 3.0
-    far = simulate_plan(oracle_plan(obj, grasp_offset=0.008 * jaw_axis), obj, cfg, progress=False)
+    far_plan = oracle_plan(obj, grasp_offset=0.008 * jaw_axis)
+    far = simulate_plan(far_plan, obj, stiff, progress=False)
     assert far.stages["grasp"] is False and "mm away" in far.reasons["grasp"]
     assert max(far.metrics["grasp"]["pad_gap_mm"]["right"]) > 5.0
+    assert far.metrics["grasp"]["seat_shift_mm"]["right"] == 0.0
+    seated = simulate_plan(far_plan, obj, SimConfig(root="weld"), progress=False)
+    assert seated.success, seated.reasons
+    assert max(seated.metrics["grasp"]["pad_gap_mm"]["right"]) <= 0.0  # both pads press
+    # the arm yielded back towards the part by about the offset (sign: against the offset)
+    assert -9.0 < seated.metrics["grasp"]["seat_shift_mm"]["right"] < -5.0
+    assert seated.metrics["grasp"]["held_fraction"]["right"] > 0.9
+    # the idle-jaw bound: seating never moves the TCP beyond seat_max_shift
+    capped = simulate_plan(far_plan, obj, SimConfig(root="weld", seat_max_shift=0.002), progress=False)
+    assert abs(capped.metrics["grasp"]["seat_shift_mm"]["right"]) <= 2.0 + 1e-6
+    assert capped.stages["grasp"] is False
 
 
 def test_failed_or_colliding_plan_is_reported_not_executed(stapler, gt_plan):
@@ -202,6 +216,13 @@ def test_cli_simulate_writes_sim_json(stapler, gt_plan, tmp_path):
         assert z["part_poses"].shape[1:] == (2, 7)
     rc = main(["simulate", str(tmp_path / "nope"), "--studio", str(stapler), "--out", str(tmp_path / "sim2")])
     assert rc == 2
+    rc = main(["simulate", str(tmp_path / "plan"), "--studio", str(stapler), "--out", str(tmp_path / "sim3"),
+               "--seat-shift", "-0.01", "--quiet"])  # fmt: skip
+    assert rc == 2 and not (tmp_path / "sim3" / "sim.json").exists()
+    rc = main(["simulate", str(tmp_path / "plan"), "--studio", str(stapler), "--out", str(tmp_path / "sim4"),
+               "--seat-shift", "0", "--quiet"])  # fmt: skip
+    assert rc == 0
+    assert json.loads((tmp_path / "sim4" / "sim.json").read_text())["metrics"]["grasp"]["seat_shift_mm"] == {"right": 0.0}
 
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -19,7 +20,7 @@ import numpy as np
 from jaxtyping import Float
 
 from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, merge_grasps, sample_antipodal_grasps
-from ..hands import RankConfig, rank_parts
+from ..hands import PartRanking, RankConfig, rank_parts
 from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
 from ._costs import (
     CostParams,
@@ -68,8 +69,18 @@ class PlanConfig(eqx.Module):
 
     num_keyframes: int = 50
     """Keyframes of the joint trajectory (fewer if the video is shorter; RSRD ≤ 50)."""
-    bimanual: bool = False
-    """Plan both arms (a ranked (left part, right part) pair) in one 16-DoF solve."""
+    bimanual: bool | Literal["auto"] = "auto"
+    """Plan both arms (a ranked (left part, right part) pair) in one 16-DoF solve. ``"auto"``
+    decides from the demonstrator's hands (ranked parts, ``hands`` given): bimanual when each hand
+    touches a part (its smallest contact distance, :class:`rsrd_jax.hands.PartRanking`, within
+    ``bimanual_contact``), the two parts differ and one of them moved; single-arm otherwise
+    (one hand, no hands, or ``parts`` given). The decision is in ``info["bimanual"]``. On the
+    studio demos a touching hand is 7.4–8.6 mm from its part (the fingertip radius), every
+    other part ≥ 15.8 mm; frog (two legs) and usb_plug (hold the socket, pull the plug) are
+    bimanual. ``plan_robot(hand_parts=...)`` gives the hands' parts directly (the pipeline passes
+    the tracker's 2D hand anchors). A failed bimanual search falls back to one arm."""
+    bimanual_contact: float = 0.012
+    """``bimanual="auto"``: largest contact distance (m) at which a hand counts as touching a part."""
     parts: tuple[int, ...] | None = None
     """Parts to use (single: tried in this order; bimanual: (left-hand part, right-hand part));
     None = from the hand/motion ranking."""
@@ -104,6 +115,12 @@ class PlanConfig(eqx.Module):
     """Maximum TCP position error at every keyframe (m)."""
     rotation_tolerance_deg: float = 10.0
     """Maximum TCP rotation error at every keyframe (degrees)."""
+    grasp_position_tolerance: float = 0.003
+    """Maximum TCP position error at the first keyframe (m): the grasp itself, where the approach
+    ends and the fingers close. Tighter than ``position_tolerance``: a grasp 9 mm off along the jaw
+    misses a 4 mm scissor blade altogether."""
+    grasp_rotation_tolerance_deg: float = 5.0
+    """Maximum TCP rotation error at the first keyframe (degrees)."""
     limit_tolerance: float = 1e-3
     """Allowed joint-limit violation (rad or m)."""
     collision_margin: float = 0.0
@@ -294,8 +311,9 @@ def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand
     (self, table, object) with the grippers at ``grip`` (n, 2) opening per finger (m); the pads'
     table distances are increased by ``pad_table`` (m)."""
     pos, rot = tcp_errors(robot, q, target)  # (n, K, 2)
-    pos = jnp.max(jnp.where(active > 0, pos, 0.0), axis=1)
-    rot = jnp.max(jnp.where(active > 0, rot, 0.0), axis=1)
+    pos, rot = jnp.where(active > 0, pos, 0.0), jnp.where(active > 0, rot, 0.0)
+    pos0, rot0 = jnp.max(pos[:, 0], axis=-1), jnp.max(rot[:, 0], axis=-1)  # at the first keyframe
+    pos, rot = jnp.max(pos, axis=1), jnp.max(rot, axis=1)
     viol = jnp.max(jnp.maximum(q - robot.upper, robot.lower - q), axis=(1, 2))
     qe = q.at[..., 14].set(grip[:, None, 0]).at[..., 15].set(grip[:, None, 1])
     res = collision_distances(robot, qe, None, None, margin=0.0, check_finite=False)
@@ -307,7 +325,7 @@ def _evaluate(robot, coll: _Collide, q, target, active, T_world_part, mask, hand
     d_obj = jnp.where(mask, d_obj + jnp.where(hand, hand_tolerance, 0.0), jnp.inf)
     min_obj = jnp.min(d_obj, axis=(-2, -1))
     mins = jnp.stack([jnp.min(res.min_self, axis=1), jnp.min(d_table, axis=(1, 2)), jnp.min(min_obj, axis=1)], -1)
-    return pos, rot, viol, mins
+    return pos, rot, viol, mins, pos0, rot0
 
 
 class _Batch(eqx.Module):
@@ -319,6 +337,8 @@ class _Batch(eqx.Module):
     rot: np.ndarray
     viol: np.ndarray
     mins: np.ndarray  # (n, 3)
+    pos0: np.ndarray  # (n,) over the active arms, at the first keyframe
+    rot0: np.ndarray
 
 
 def _run_candidates(
@@ -368,9 +388,12 @@ def _pad_table_allowance(cfg: PlanConfig) -> float:
 
 
 def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = True,
-            seated: np.ndarray | None = None, solved: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+            seated: np.ndarray | None = None, solved: np.ndarray | None = None,
+            grasp: bool = True) -> tuple[np.ndarray, dict]:
     """Apply the stages in order; returns the surviving mask and counts rejected per stage
-    (collisions only when ``collision``; ``seated`` = the free gripper clears everything)."""
+    (collisions only when ``collision``; ``seated`` = the free gripper clears everything; the
+    grasp tolerances at the first keyframe only when ``grasp``, i.e. for trajectories, not for
+    approach segments)."""
     counts = {}
     alive = valid.copy()
     counts["grasp_invalid"] = int((~valid).sum())
@@ -384,6 +407,8 @@ def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = Tru
     counts["solver"] = int((alive & ~ok).sum())
     alive &= ok
     ok = (np.max(b.pos, 1) <= cfg.position_tolerance) & (np.max(b.rot, 1) <= np.deg2rad(cfg.rotation_tolerance_deg))
+    if grasp:
+        ok &= (b.pos0 <= cfg.grasp_position_tolerance) & (b.rot0 <= np.deg2rad(cfg.grasp_rotation_tolerance_deg))
     counts["pose_error"] = int((alive & ~ok).sum())
     alive &= ok
     ok = b.viol <= cfg.limit_tolerance
@@ -445,6 +470,23 @@ def _failure(result: PlanResult, message: str, T_robot_obj, idx, info) -> RobotP
     )
 
 
+def _two_hands(rk: PartRanking, moved: np.ndarray, contact: float) -> tuple[bool, str]:
+    """``bimanual="auto"``: do both hands touch distinct parts, one of which moved?"""
+    cd = np.asarray(rk.contact_distance, np.float64)
+    if rk.method != "hands" or cd.shape[0] < 2:
+        return False, f"{'one hand' if rk.method == 'hands' else 'no hands'}: single-arm"
+    best = np.argmin(cd, axis=1)  # (left, right)
+    dist = cd[np.arange(2), best]
+    mm = ", ".join(f"{h} hand {1000 * d:.1f} mm from part {k}" for h, d, k in zip(("left", "right"), dist, best))
+    if not np.all(dist <= contact):
+        return False, f"{mm}: not both within {1000 * contact:.0f} mm, single-arm"
+    if best[0] == best[1]:
+        return False, f"{mm}: both hands on one part, single-arm"
+    if not moved[best].any():
+        return False, f"{mm}: neither part moved, single-arm"
+    return True, f"{mm}: bimanual"
+
+
 def plan_robot(
     robot: YumiModel,
     part_points: Sequence[Float[np.ndarray, "_n 3"]],
@@ -454,6 +496,7 @@ def plan_robot(
     grasps: dict[int, PartGrasps] | None = None,
     config: PlanConfig = PlanConfig(),
     mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
+    hand_parts: tuple[int, int] | None = None,
 ) -> RobotPlan:
     """Plan a YuMi joint trajectory that makes grasped parts follow a part trajectory.
 
@@ -473,7 +516,8 @@ def plan_robot(
     the parts at every keyframe; grasps that never clear are rejected (``grasp_collision``) without
     solving. Up to ``max_candidates`` seated grasps (best score first) are solved (single-arm
     problems, the other arm held near home) in vmapped chunks and rejected in order by tracking
-    error (``position_tolerance``/``rotation_tolerance_deg`` at every keyframe), joint limits and
+    error (``position_tolerance``/``rotation_tolerance_deg`` at every keyframe, the tighter
+    ``grasp_position_tolerance``/``grasp_rotation_tolerance_deg`` at the first), joint limits and
     collisions of the whole robot along the trajectory (self, table, parts). Bimanual: the best ``top_k_per_arm``
     survivors of each arm are combined into 16-DoF solves initialised from them and checked again
     (including arm-arm collisions). The best survivors by cost then get an approach segment
@@ -492,6 +536,11 @@ def plan_robot(
         mesh_points: optional P point sets (part frames) the grasp meshes are built from instead
             of ``part_points`` (e.g. ``ObjectModel.part_extent_points``: a thin part's Gaussian
             centres lie on its mid-surface); collisions are still checked on ``part_points``.
+        hand_parts: with ``config.bimanual="auto"`` and ``config.parts`` None: the (left hand,
+            right hand) parts the demonstrator held, decided elsewhere (the tracker's 2D hand
+            anchors, which a depth error of the tracked object does not move, unlike the 3D
+            fingertips in the object frame). Distinct parts, one of which moved, are planned
+            bimanually (that pair only); otherwise, or if that fails, single-arm.
 
     Returns:
         :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why.
@@ -499,6 +548,51 @@ def plan_robot(
     Raises:
         ValueError: on inconsistent input shapes or a bad part index.
     """
+    if config.bimanual not in (True, False, "auto"):
+        raise ValueError(f"config.bimanual must be True, False or 'auto', got {config.bimanual!r}")
+    args = (robot, part_points, T_obj_part, T_robot_obj, hands, grasps)
+    if config.bimanual != "auto":
+        return _plan_robot(*args, config, mesh_points)
+    why = "parts given" if config.parts is not None else "no hands" if hands is None else "one part"
+    decided, why = False, f"{why}: single-arm"
+    pair_config = config
+    if config.parts is None and hand_parts is not None and len(part_points) >= 2:
+        l, r = (int(v) for v in hand_parts)
+        if not (0 <= l < len(part_points) and 0 <= r < len(part_points)):
+            raise ValueError(f"hand_parts {hand_parts} out of range for {len(part_points)} parts")
+        rk = rank_parts(list(part_points), np.asarray(T_obj_part, float), None, config=config.rank_config)
+        motion = np.asarray(rk.relative_motion, np.float64)
+        moved = motion >= config.min_motion_fraction * motion.max()
+        decided = l != r and bool(moved[[l, r]].any())
+        why = (f"hands hold parts {l} (left) and {r} (right): "
+               + ("bimanual" if decided else "one part, single-arm" if l == r else "neither moved, single-arm"))
+        pair_config = dataclasses.replace(config, parts=(l, r))
+    elif config.parts is None and hands is not None and len(part_points) >= 2:
+        rk = rank_parts(list(part_points), np.asarray(T_obj_part, float), hands, config=config.rank_config)
+        motion = np.asarray(rk.relative_motion, np.float64)
+        decided, why = _two_hands(rk, motion >= config.min_motion_fraction * motion.max(), config.bimanual_contact)
+    plan = _plan_robot(*args, dataclasses.replace(pair_config if decided else config, bimanual=decided), mesh_points)
+    decision = {"mode": "auto", "bimanual": decided, "reason": why}
+    if decided and not plan.success:  # a single arm may still reproduce part of the demo
+        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points)
+        decision.update(fallback="single-arm", bimanual_result=plan.result_name, bimanual_message=plan.message,
+                        bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
+        plan = single
+    plan.info["bimanual"] = decision
+    return plan
+
+
+def _plan_robot(
+    robot: YumiModel,
+    part_points: Sequence[Float[np.ndarray, "_n 3"]],
+    T_obj_part: Float[np.ndarray, "t p 7"],
+    T_robot_obj: Float[np.ndarray, "7"],
+    hands: Float[np.ndarray, "t h 2 3"] | None = None,
+    grasps: dict[int, PartGrasps] | None = None,
+    config: PlanConfig = PlanConfig(),
+    mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
+) -> RobotPlan:
+    """The body of :func:`plan_robot` (``config.bimanual`` True or False)."""
     import time
 
     t_start = time.perf_counter()
@@ -547,12 +641,12 @@ def plan_robot(
     else:
         rk = rank_parts(list(part_points), T_obj_part, hands, config=config.rank_config)
         info["ranking"] = rk.method
+        motion = np.asarray(rk.relative_motion, np.float64)
+        moved = motion >= config.min_motion_fraction * motion.max()
         if config.bimanual:
             order = [tuple(int(v) for v in p) for p in np.asarray(rk.pair_order)]
         else:
             order = [(int(k),) for k in np.asarray(rk.part_order)]
-        motion = np.asarray(rk.relative_motion, np.float64)
-        moved = motion >= config.min_motion_fraction * motion.max()
         info["relative_motion_mm"] = [round(float(m) * 1e3, 2) for m in motion]
         info["still_parts"] = [int(k) for k in np.flatnonzero(~moved)]
         order = [p for p in order if moved[list(p)].any()]
@@ -621,7 +715,8 @@ def plan_robot(
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
                    pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
-                   viol=np.full(n, np.inf, np.float32), mins=np.full((n, 3), -np.inf, np.float32))
+                   viol=np.full(n, np.inf, np.float32), mins=np.full((n, 3), -np.inf, np.float32),
+                   pos0=np.full(n, np.inf, np.float32), rot0=np.full(n, np.inf, np.float32))
         if len(sel):
             bs = _run_candidates(params, robot_lite, coll, x0[sel], target[sel], active[sel], T_robot_part, mask,
                                  config, acceleration, grip[sel])
@@ -834,12 +929,12 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
                 grip[m, j, a] = open_grip if cl is None else min(float(g.width[i]) / 2 + cl, open_grip)
     bs = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
                          q_ref, ref_w, q_last=q_first)  # fmt: skip
-    alive_all = np.stack([_reject(bj, np.ones(n, bool), cfg)[0] for bj in bs], 1)  # (n, G)
+    alive_all = np.stack([_reject(bj, np.ones(n, bool), cfg, grasp=False)[0] for bj in bs], 1)  # (n, G)
     # per candidate: its first passing opening (or, if none passes, the last, for the counts)
     pick = np.where(alive_all.any(1), np.argmax(alive_all, 1), G - 1)
     b = jax.tree.map(lambda *fs: np.stack(fs, 1)[np.arange(n), pick], *bs)
     grip = grip[np.arange(n), pick]
-    alive, counts = _reject(b, np.ones(n, bool), cfg)
+    alive, counts = _reject(b, np.ones(n, bool), cfg, grasp=False)
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
     end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)

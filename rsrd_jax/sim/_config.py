@@ -90,6 +90,18 @@ class SimConfig(eqx.Module):
     """Longest time (s) the grippers close before the motion starts anyway."""
     grip_stall_speed: float = 0.002
     """Finger speed (m/s) below which a closing gripper counts as stalled (on the part or empty)."""
+    seat_max_shift: float = 0.01
+    """Compliant seating: while the jaw closes, each active arm yields along its jaw axis (TCP x)
+    to the net force its fingers feel along that axis (an admittance law on what a wrist
+    force/torque sensor or the arm's joint-torque estimate measures), so a grasp that is a few mm
+    off-centre on a part that cannot shift sideways (a welded root, a hinge) is centred until both
+    fingers press. The shift is at most this (m) and is kept, in the TCP frame, through the motion.
+    0 disables it (the jaw stalls on the first finger)."""
+    seat_speed: float = 0.02
+    """Compliant seating: largest yield speed (m/s) along the jaw axis."""
+    seat_force: float = 4.0
+    """Compliant seating: net jaw-axis force (N) at which the yield speed is ``tanh(1)`` of
+    ``seat_speed`` (a closing finger presses with up to the gripper's 20 N)."""
     release_clearance: float = 0.006
     """On release the jaw opens to its width on the part plus this (m), not fully: fully opened
     fingers (50 mm) knock neighbouring parts or tip light objects over."""

@@ -2,7 +2,9 @@
 
 Sequence (position servos track a time-scaled joint reference; ``servo_ctrl`` feed-forward):
 settle at home → transit home → pre-grasp (smooth point-to-point) → approach (pre-grasp → grasp,
-grippers opened as the plan's approach says) → close the active grippers until the fingers stall → follow ``q_video``
+grippers opened as the plan's approach says) → close the active grippers until the fingers stall,
+each arm yielding along its jaw axis to the fingers' net force (compliant seating,
+``SimConfig.seat_max_shift``) → follow ``q_video`` with the seating shift kept in the TCP frame
 (piecewise linear, time-scaled so no arm joint exceeds ``joint_speed``) → open → retreat along
 −TCP z → settle. The object is simulated with its real joints; nothing is welded to the gripper,
 so a part moves only through finger contacts and friction.
@@ -217,6 +219,10 @@ class _Runner:
         self.gid2part = gid2part
         self.samples: list = []  # (index, part poses) at the motion's video-frame waypoints
         self.robot_object_contacts = 0
+        # geoms of each gripper's two finger bodies: what a wrist force sensor feels
+        pad_bodies = self.m.geom_bodyid[scene.pad_geoms]
+        self.finger_geoms = [set(np.flatnonzero(np.isin(self.m.geom_bodyid, pad_bodies[a])).tolist()) for a in range(2)]
+        self.scratch = mujoco.MjData(self.m)
 
     def close(self):
         if self.renderer is not None:
@@ -234,6 +240,57 @@ class _Runner:
                     if self.gid2part[h] == self.part[a]:
                         out[a, f] = True
         return out
+
+    def jaw_force(self, a: int | np.integer) -> float:
+        """Net contact force (N) on arm ``a``'s fingers along its jaw axis (TCP x)."""
+        d, f6, F = self.d, np.zeros(6), np.zeros(3)
+        geoms = self.finger_geoms[a]
+        for i in range(d.ncon):
+            c = d.contact[i]
+            on1, on2 = c.geom1 in geoms, c.geom2 in geoms
+            if on1 == on2:  # not this gripper, or finger on finger
+                continue
+            mujoco.mj_contactForce(self.m, d, i, f6)
+            f = c.frame.reshape(3, 3).T @ f6[:3]  # the force on geom2, in the world
+            F += f if on2 else -f
+        return float(F @ d.site_xmat[self.s.tcp_sites[a]].reshape(3, 3)[:, 0])
+
+    def shifted(self, q: np.ndarray, shift: np.ndarray) -> np.ndarray:
+        """``q`` with each arm's TCP moved by ``shift[a]`` (m) along its own x (jaw) axis, its
+        orientation kept (IK from ``q``)."""
+        s, out = self.s, np.asarray(q, float).copy()
+        for a in np.flatnonzero(shift != 0.0):
+            self.scratch.qpos[s.robot_qpos] = out
+            mujoco.mj_kinematics(self.m, self.scratch)
+            T = np.eye(4)
+            T[:3, :3] = self.scratch.site_xmat[s.tcp_sites[a]].reshape(3, 3)
+            T[:3, 3] = self.scratch.site_xpos[s.tcp_sites[a]] + shift[a] * T[:3, 0]
+            out, _, _ = tcp_ik(self.m, self.scratch, s.robot_qpos, s.robot_dof, s.tcp_sites[a], a, out, T)
+        return out
+
+    def close_grippers(self, q: np.ndarray, arms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closes the active grippers at ``q`` until the fingers stall, with compliant seating
+        (``SimConfig.seat_max_shift``). Returns (per-arm jaw-axis shift (2,) in m, the shifted q)."""
+        cfg, dt = self.cfg, self.m.opt.timestep
+        fingers = self.s.robot_dof[14 + arms]
+        shift, q_ref, block = np.zeros(2), q, 5
+        self.grip[arms] = 0.0
+        t0 = self.d.time
+        while self.d.time - t0 < cfg.grip_timeout:
+            if cfg.seat_max_shift > 0:
+                for a in arms:
+                    v = cfg.seat_speed * np.tanh(self.jaw_force(a) / cfg.seat_force)
+                    shift[a] = np.clip(shift[a] + v * block * dt, -cfg.seat_max_shift, cfg.seat_max_shift)
+                q_ref = self.shifted(q, shift)
+            for _ in range(block):
+                self.step(q_ref, np.zeros(16))
+            if self.d.time - t0 < 0.15 or np.any(np.abs(self.d.qvel[fingers]) >= cfg.grip_stall_speed):
+                continue
+            if cfg.seat_max_shift <= 0 or all(abs(self.jaw_force(a)) < 0.25 * cfg.seat_force
+                                              or abs(shift[a]) >= cfg.seat_max_shift for a in arms):  # fmt: skip
+                break
+        self.hold(q_ref, 0.1)
+        return shift, q_ref
 
     def record(self):
         s, d = self.s, self.d
@@ -332,8 +389,9 @@ def simulate_plan(
     Stages (RSRD Table 1):
       * **Traj**: the plan succeeded (``plan.success``) and does not collide
         (``min_distance`` ≥ 0 where known). Otherwise it is reported and *not* executed.
-      * **Grasp**: when the motion starts, both finger pads of every active arm touch the arm's
-        intended part (contacts with that part's geoms), the transit/approach did not disturb the
+      * **Grasp**: when the motion starts (after the close and its compliant seating), both
+        finger pads of every active arm touch the arm's intended part (contacts with that part's
+        geoms; one may be within ``success.pad_gap``), the transit/approach did not disturb the
         object (``disturbance_tolerance``), and while held the part does not slip relative to the
         TCP beyond ``success.slip_position`` / ``slip_rotation_deg``.
       * **Exec**: after release and retreat every part's pose relative to the root matches the
@@ -416,11 +474,7 @@ def simulate_plan(
         disturbed = float(np.linalg.norm(d.geom_xpos[np.concatenate(scene.part_geoms)] - geoms_start, axis=1).max())
         # close the active grippers until the fingers stall
         run.phase = 3
-        run.grip[arms] = 0.0
-        fingers = scene.robot_dof[14 + arms]
-        run.hold(qa[-1], cfg.grip_timeout, until=lambda: np.all(np.abs(d.qvel[fingers]) < cfg.grip_stall_speed),
-                 min_time=0.15)  # fmt: skip
-        run.hold(qa[-1], 0.1)
+        shift, q_seated = run.close_grippers(qa[-1], arms)
         grip_width = 2 * d.qpos[scene.robot_qpos[14 + arms]]
         pads0 = run.pad_contacts()
         # gap of each pad to the arm's intended part (negative = penetration)
@@ -431,7 +485,9 @@ def simulate_plan(
         # follow the plan
         run.phase = 4
         n_before = len(run.rec["time"])
-        run.path(np.concatenate([qa[-1:], qv]), sample=True)
+        if np.any(shift != 0.0):  # keep the seating shift, in the TCP frame, along the motion
+            qv = np.stack([run.shifted(q, shift) for q in qv])
+        run.path(np.concatenate([q_seated[None], qv]), sample=True)
         n_motion = (n_before, len(run.rec["time"]))
         T_end_motion = scene.part_poses()
         # release, retreat, settle
@@ -538,7 +594,8 @@ def simulate_plan(
                   "slip_mm": {("right", "left")[a]: round(1000 * slip_p[a], 2) for a in arms},
                   "slip_deg": {("right", "left")[a]: round(float(np.rad2deg(slip_r[a])), 2) for a in arms},
                   "held_fraction": {("right", "left")[a]: round(held[a], 3) for a in arms},
-                  "disturbance_mm": round(1000 * disturbed, 2)},
+                  "disturbance_mm": round(1000 * disturbed, 2),
+                  "seat_shift_mm": {("right", "left")[a]: round(1000 * float(shift[a]), 2) for a in arms}},
         "exec": {"final_error_mm": [round(1000 * e[0], 2) for e in final_err],
                  "final_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in final_err],
                  "moving_parts": moved,
