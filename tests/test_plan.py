@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rsrd_jax.grasp import GraspResult, PartGrasps
+from rsrd_jax.grasp import GraspConfig, GraspResult, PartGrasps
 from rsrd_jax.io import ArtefactError, load_plan, save_plan
 from rsrd_jax.plan import (
     CollisionData,
@@ -28,6 +28,7 @@ from rsrd_jax.plan import (
     tcp_errors,
     trajectory_problem,
 )
+from rsrd_jax.plan._costs import pose_residual, pose_residual_jacobian
 from rsrd_jax.robot import HOME_Q, load_yumi, object_boxes_from_points, tcp_poses
 
 
@@ -132,6 +133,81 @@ def test_pose_residual_matches_numpy_and_gradients_match_fd(robot):
         eps = 1e-3
         fd = (f(x + eps * v) - f(x - eps * v)) / (2 * eps)
         assert float(jnp.sum(g * v)) == pytest.approx(float(fd), rel=2e-2, abs=2e-2)
+
+
+def test_analytic_pose_jacobian_matches_autodiff_and_fd(robot):
+    lite = strip_robot(robot)
+    params = CostParams(lite, CostWeights(), None)
+    rng = np.random.default_rng(3)
+    for i in range(4):
+        q = jnp.asarray(HOME_Q + 0.4 * rng.standard_normal(16), jnp.float32)
+        tgt = tcp_poses(robot, q + jnp.asarray(0.3 * rng.standard_normal(16), jnp.float32))
+        act = jnp.asarray([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 1.0]][i])
+        ref = (q + 0.1, jnp.asarray(2.0)) if i == 3 else (None, None)
+        d = PoseData(tgt, act, *ref)
+        r0 = pose_residual(q, d, params)
+        r1, J1 = pose_residual_jacobian(q, d, params)
+        np.testing.assert_array_equal(np.asarray(r0), np.asarray(r1))
+        np.testing.assert_allclose(np.asarray(J1), np.asarray(jax.jacfwd(pose_residual)(q, d, params)), atol=2e-5)
+        eps = 1e-3
+        qd = np.asarray(q, np.float64)
+        fd = np.stack([(np.asarray(pose_residual(jnp.asarray(qd + eps * e, jnp.float32), d, params), np.float64)
+                        - np.asarray(pose_residual(jnp.asarray(qd - eps * e, jnp.float32), d, params), np.float64))
+                       / (2 * eps) for e in np.eye(16)], 1)  # fmt: skip
+        np.testing.assert_allclose(np.asarray(J1), fd, atol=3e-3)
+    # near the target the rotation residual's Jacobian uses the small-angle expansion
+    d = PoseData(tcp_poses(robot, jnp.asarray(HOME_Q)), jnp.ones(2))
+    _, J1 = pose_residual_jacobian(jnp.asarray(HOME_Q), d, params)
+    np.testing.assert_allclose(np.asarray(J1), np.asarray(jax.jacfwd(pose_residual)(jnp.asarray(HOME_Q), d, params)),
+                               atol=2e-5)
+
+
+def test_seating_coarse_to_fine_equals_checking_every_keyframe(robot):
+    """``_seat_grasps`` checks a few keyframes first; its depths equal the brute-force choice
+    (every grasp, every depth, every keyframe) for the grasps that seat."""
+    from rsrd_jax.grasp import build_part_mesh, sample_antipodal_grasps
+    from rsrd_jax.plan._proxy import hand_clearance, hand_geometry, part_sdf, robot_proxy
+    from rsrd_jax.plan._search import _pad_table_allowance, _seat_grasps, grasp_targets
+
+    lite = strip_robot(robot)
+    pts = [_cube(0.02, 8), _cube(0.015, 6)]
+    K = 9
+    T_obj_part = np.tile(np.array([1.0, 0, 0, 0, 0, 0, 0.12]), (K, 2, 1))
+    # part 1 sweeps across, 5 cm above part 0, through some grasps' gripper at a few keyframes
+    T_obj_part[:, 1, 4] = np.linspace(-0.15, 0.15, K)
+    T_obj_part[:, 1, 6] = 0.12 + 0.05
+    T_robot_obj = T_ROBOT_OBJ
+    cfg = PlanConfig(collision_margin=0.002)
+    mesh = build_part_mesh(pts[0], cfg.mesh_config)
+    g = sample_antipodal_grasps(mesh, jax.random.PRNGKey(0), GraspConfig(num_grasps=12))
+    proxy = robot_proxy(lite, cfg.sample_spacing)
+    sdf = part_sdf(pts, cfg.sdf_spacing)
+    hand = hand_geometry(lite, proxy)
+    T_robot_part = np.asarray((jaxlie.SE3(jnp.asarray(T_robot_obj, jnp.float32))
+                               @ jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32))).wxyz_xyz)  # fmt: skip
+    Tg = np.asarray(g.T_part_grasp, float)
+    opening = np.clip(np.asarray(g.width) / 2, 0, float(robot.upper[14])).astype(np.float32)
+    valid = np.asarray(g.valid, bool)
+    ok, depth = _seat_grasps(lite, hand, sdf, Tg, opening, valid, T_robot_obj, T_obj_part[:, 0], T_robot_part, 0, cfg)
+    sub = [0, 3, 5, 8]  # the coarse keyframes for K = 9 (part 1 is right above part 0 at keyframe 4)
+    brute, coarse = [], []
+    for dd in cfg.grasp_depths:
+        Td = np.asarray((jaxlie.SE3(jnp.asarray(Tg, jnp.float32))
+                         @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -dd]))).wxyz_xyz)  # fmt: skip
+        T_tcp = grasp_targets(T_robot_obj, T_obj_part[:, 0], Td)
+        for out, kf in ((brute, slice(None)), (coarse, sub)):
+            out.append(np.asarray(hand_clearance(lite, hand, sdf, jnp.asarray(T_tcp[:, kf], jnp.float32),
+                                                 jnp.asarray(opening), jnp.asarray(T_robot_part[kf], jnp.float32),
+                                                 jnp.asarray(0), True, _pad_table_allowance(cfg))))  # fmt: skip
+    clear = np.stack(brute, 1) >= cfg.collision_margin
+    # the fine pass decides: some grasps clear the coarse keyframes and still collide in between
+    assert np.any(valid[:, None] & (np.stack(coarse, 1) >= cfg.collision_margin) & ~clear)
+    ok_b = valid & clear.any(1)
+    np.testing.assert_array_equal(ok, ok_b)
+    assert 0 < ok.sum() < valid.sum()  # some grasps seat, some do not: the check decides something
+    depth_b = np.asarray(cfg.grasp_depths)[np.argmax(clear, 1)]
+    np.testing.assert_array_equal(depth[ok], depth_b[ok])
+    assert len(set(depth[ok].tolist())) > 1  # several depths chosen
 
 
 def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):

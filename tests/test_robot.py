@@ -144,6 +144,26 @@ def test_fk_jacobian_finite_differences(yumi, rng):
     np.testing.assert_allclose(J_fwd[:3, :7], jp[:, [m.jnt_dofadr[m.joint(n).id] for n in robot.RIGHT_ARM_JOINTS]], atol=1e-4)
 
 
+def test_tcp_jacobian_matches_mujoco_site_jacobian(yumi, rng):
+    qs = _random_q(rng, 3)
+    T, J = robot.tcp_jacobian(yumi, jnp.asarray(qs))
+    assert T.shape == (3, 2, 7) and J.shape == (3, 2, 6, 16)
+    np.testing.assert_allclose(np.asarray(T), np.asarray(robot.tcp_poses(yumi, jnp.asarray(qs))), atol=1e-6)
+    for k, q in enumerate(qs):
+        m, d = _mj_state(yumi, q.astype(float))
+        mujoco.mj_comPos(m, d)
+        for a, (site, names) in enumerate(zip(robot.TCP_SITES, (robot.RIGHT_ARM_JOINTS, robot.LEFT_ARM_JOINTS))):
+            jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+            mujoco.mj_jacSite(m, d, jp, jr, m.site(site).id)
+            cols = [m.jnt_dofadr[m.joint(n).id] for n in names]
+            own = robot.RIGHT_ARM if a == 0 else robot.LEFT_ARM
+            np.testing.assert_allclose(np.asarray(J[k, a, :3, own]), jp[:, cols], atol=1e-5)
+            np.testing.assert_allclose(np.asarray(J[k, a, 3:, own]), jr[:, cols], atol=1e-5)
+            other = np.ones(16, bool)
+            other[own] = False
+            assert np.abs(np.asarray(J[k, a][:, other])).max() == 0.0  # other arm, fingers
+
+
 def test_fk_batch_shapes_and_vmap(yumi, rng):
     qs = jnp.asarray(_random_q(rng, 6))
     flat = robot.tcp_poses(yumi, qs)

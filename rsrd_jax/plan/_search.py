@@ -470,6 +470,61 @@ def _failure(result: PlanResult, message: str, T_robot_obj, idx, info) -> RobotP
     )
 
 
+SEAT_BLOCK = 512
+"""Grasps per seating call (padded): one compilation per keyframe count."""
+
+
+def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, T_parts: np.ndarray, part: int,
+                      cfg: PlanConfig) -> np.ndarray:
+    """:func:`hand_clearance` (+ ``hand_tolerance``) of n gripper trajectories (n, k, 7) in padded
+    blocks of ``SEAT_BLOCK``."""
+    n = T_tcp.shape[0]
+    out = np.zeros(n, np.float32)
+    for s in range(0, n, SEAT_BLOCK):
+        m = min(SEAT_BLOCK, n - s)
+        sl = np.minimum(np.arange(s, s + SEAT_BLOCK), n - 1)  # pad with the last row
+        c = hand_clearance(robot, hand, sdf, jnp.asarray(T_tcp[sl], jnp.float32), jnp.asarray(opening[sl]),
+                           jnp.asarray(T_parts, jnp.float32), jnp.asarray(part), cfg.check_palm_on_grasped_part,
+                           _pad_table_allowance(cfg))  # fmt: skip
+        out[s : s + m] = np.asarray(c)[:m]
+    return out + cfg.hand_tolerance
+
+
+def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: np.ndarray, T_robot_obj: np.ndarray,
+                 T_obj_part_k: np.ndarray, T_robot_part: np.ndarray, part: int, cfg: PlanConfig,
+                 coarse: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Seating of part ``part``'s grasps ``Tg`` (n, 7): per grasp the smallest depth of
+    ``cfg.grasp_depths`` at which the free gripper clears the table and the parts at every
+    keyframe (``ok``), else the depth of its largest clearance; returns (ok (n,), depth (n,)).
+
+    Only valid grasps are checked, and only at depths shallower than the one they already seat
+    at. Each depth is checked coarse to fine: first at ``coarse`` keyframes spread over the
+    trajectory, then at every keyframe for the grasps that cleared those (a grasp that hits
+    something at one keyframe fails anyway), which gives the same result as checking every
+    keyframe of every grasp (most grasps never seat: on the stapler 4748 of 4992)."""
+    n, K = Tg.shape[0], T_robot_part.shape[0]
+    depths = np.asarray(cfg.grasp_depths, float)
+    sub = np.unique(np.round(np.linspace(0, K - 1, min(coarse, K))).astype(int))
+    seat = np.full(n, -1)
+    best = np.full(n, -np.inf)
+    best_j = np.zeros(n, int)
+    for j, d in enumerate(depths):
+        todo = np.flatnonzero(valid & (seat < 0))
+        if len(todo) == 0:
+            break
+        Td = np.asarray((_se3(Tg[todo]) @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -d]))).wxyz_xyz)
+        T_tcp = grasp_targets(T_robot_obj, T_obj_part_k, Td)  # (m, K, 7)
+        c = _clearance_blocks(robot, hand, sdf, T_tcp[:, sub], opening[todo], T_robot_part[sub], part, cfg)
+        fine = np.flatnonzero(c >= cfg.collision_margin)
+        if len(fine) and len(sub) < K:
+            c[fine] = _clearance_blocks(robot, hand, sdf, T_tcp[fine], opening[todo[fine]], T_robot_part, part, cfg)
+        seat[todo[c >= cfg.collision_margin]] = j
+        better = c > best[todo]
+        best[todo[better]], best_j[todo[better]] = c[better], j
+    ok = seat >= 0
+    return ok, depths[np.where(ok, seat, best_j)]
+
+
 def _two_hands(rk: PartRanking, moved: np.ndarray, contact: float) -> tuple[bool, str]:
     """``bimanual="auto"``: do both hands touch distinct parts, one of which moved?"""
     cd = np.asarray(rk.contact_distance, np.float64)
@@ -676,23 +731,12 @@ def _plan_robot(
         if k not in seat_cache:
             g = get_grasps(k)
             Tg = np.asarray(g.T_part_grasp, float)
-            opening = jnp.asarray(np.clip(np.asarray(g.width) / 2, 0.0, open_grip), jnp.float32)
-            clear = []
-            for d in config.grasp_depths:
-                Td = np.asarray((_se3(Tg) @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -d]))).wxyz_xyz)
-                T_tcp = grasp_targets(T_robot_obj, T_obj_part[idx, k], Td)
-                clear.append(np.asarray(hand_clearance(robot_lite, hand, coll.sdf, jnp.asarray(T_tcp, jnp.float32),
-                                                       opening, jnp.asarray(T_robot_part, jnp.float32),
-                                                       jnp.asarray(k), config.check_palm_on_grasped_part,
-                                                       _pad_table_allowance(config))))
-            clear = np.stack(clear, 1) + config.hand_tolerance  # (n, D)
-            ok = clear >= config.collision_margin
-            j = np.where(ok.any(1), np.argmax(ok, 1), np.argmax(clear, 1))
-            depth = np.asarray(config.grasp_depths, float)[j]
+            opening = np.clip(np.asarray(g.width) / 2, 0.0, open_grip).astype(np.float32)
+            ok, depth = _seat_grasps(robot_lite, hand, coll.sdf, Tg, opening, np.asarray(g.valid, bool), T_robot_obj,
+                                     T_obj_part[idx, k], T_robot_part, k, config)  # fmt: skip
             offs = jnp.stack([jnp.zeros(len(depth)), jnp.zeros(len(depth)), -jnp.asarray(depth)], -1)
             Tg_s = (_se3(Tg) @ jaxlie.SE3.from_translation(offs)).wxyz_xyz
-            seat_cache[k] = (eqx.tree_at(lambda x: x.T_part_grasp, g, jnp.asarray(Tg_s, g.T_part_grasp.dtype)),
-                             ok.any(1), depth)
+            seat_cache[k] = (eqx.tree_at(lambda x: x.T_part_grasp, g, jnp.asarray(Tg_s, g.T_part_grasp.dtype)), ok, depth)
         return seat_cache[k]
 
     def single_arm(k: int, arm: int) -> tuple[_Batch, np.ndarray, dict, np.ndarray]:

@@ -44,7 +44,7 @@ from ._constants import (
     VELOCITY_LIMIT,
 )
 from ._distance import box_sdf, capsule_box, capsule_capsule
-from ._kinematics import FKResult, forward_kinematics, tcp_poses
+from ._kinematics import FKResult, forward_kinematics, tcp_jacobian, tcp_poses
 from ._model import Kinematics, RobotGeometry, YumiModel, load_yumi
 from ._scene import build_scene_spec, build_scene_xml, servo_ctrl
 
@@ -56,5 +56,6 @@ __all__ = [
     "SELF_COLLISION_IGNORE", "TABLE_CENTER", "TABLE_HALF_EXTENTS", "TABLE_TOP_Z", "TCP_SITES",
     "VELOCITY_LIMIT", "YumiModel", "box_sdf", "build_scene_spec", "build_scene_xml",
     "capsule_box", "capsule_capsule", "collision_distances", "forward_kinematics", "load_yumi",
-    "mjx_penetration", "object_boxes_from_points", "object_capsules_from_points", "servo_ctrl", "tcp_poses",
+    "mjx_penetration", "object_boxes_from_points", "object_capsules_from_points", "servo_ctrl", "tcp_jacobian",
+    "tcp_poses",
 ]

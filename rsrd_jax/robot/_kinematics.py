@@ -106,3 +106,35 @@ def tcp_poses(
 ) -> Float[Array, "*batch 2 7"]:
     """TCP poses (right, left) as wxyz_xyz 7-vectors, world frame; see :func:`forward_kinematics`."""
     return forward_kinematics(model, q, check_finite).T_world_tcp.wxyz_xyz
+
+
+def _tcp_jacobian_single(kin: Kinematics, q: Float[Array, "16"]) -> tuple[Array, Array, Array]:
+    """TCP rotations (2, 3, 3), positions (2, 3) and world-frame Jacobians (2, 6, 16) of one
+    configuration: rows 0..2 the TCP point's linear velocity, 3..5 the angular velocity, per unit
+    joint velocity (arm joint k of arm a turns about ``R_k axis_k`` through ``p_k``; the gripper
+    joints do not move the TCP)."""
+    R, p, tR, tp = _fk_single(kin, q)
+    Rk = R[1:].reshape(2, -1, 3, 3)[:, : kin.arm_axis.shape[1]]  # (2, 7, 3, 3) arm links
+    pk = p[1:].reshape(2, -1, 3)[:, : kin.arm_axis.shape[1]]
+    w = jnp.einsum("akij,akj->aki", Rk, kin.arm_axis)  # (2, 7, 3) joint axes, world frame
+    v = jnp.cross(w, tp[:, None] - pk)  # (2, 7, 3)
+    cols = jax.nn.one_hot(kin.arm_q, q.shape[-1], dtype=q.dtype)  # (2, 7, 16): no scatter
+    J = jnp.einsum("akr,akj->arj", jnp.concatenate([v, w], -1), cols)
+    return tR, tp, J
+
+
+def tcp_jacobian(
+    model: YumiModel, q: Float[Array | np.ndarray, "*batch 16"], check_finite: bool = True
+) -> tuple[Float[Array, "*batch 2 7"], Float[Array, "*batch 2 6 16"]]:
+    """TCP poses (right, left; wxyz_xyz, world frame) and their geometric Jacobians: ``J[..., a,
+    :3, j]`` is the velocity of arm a's TCP point and ``J[..., a, 3:, j]`` its angular velocity
+    (world frame) per unit velocity of joint j (jit, vmap and grad compatible). One forward pass
+    instead of 16 forward-mode tangents through :func:`forward_kinematics`."""
+    check_q(q)
+    q = jnp.asarray(q)
+    if check_finite:
+        q = _check_finite(q)
+    batch = q.shape[:-1]
+    tR, tp, J = jax.vmap(lambda x: _tcp_jacobian_single(model.kin, x))(q.reshape(-1, q.shape[-1]))
+    T = _se3(tR, tp).wxyz_xyz
+    return T.reshape(*batch, 2, 7), J.reshape(*batch, 2, 6, q.shape[-1])
