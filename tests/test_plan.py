@@ -273,6 +273,15 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     assert tight.result == PlanResult.unreachable
     rej = tight.info["attempts"][0]["rejections"]["right"]
     assert rej["pose_error"] > 0 and rej["joint_limits"] == rej["collision"] == 0
+    # two parts: part 0's grasps all miss the tight tolerance, part 1's (at the centre of a 20 cm
+    # block) never seat; the failure reported is the furthest stage reached, part 0's pose error
+    two = np.concatenate([traj, traj], 1)
+    two[:, 1, 5] += 0.3
+    both = plan_robot(robot, [_cube(), _cube(0.1, 10)], two, T_ROBOT_OBJ, grasps={0: _grasps(6, 0), 1: _grasps(6, 0)},
+                      config=dataclasses.replace(CFG, grasp_position_tolerance=1e-7, parts=(0, 1)))  # fmt: skip
+    rej = [a["rejections"]["right"] for a in both.info["attempts"]]
+    assert rej[0]["pose_error"] == 6 and rej[1]["grasp_collision"] == 6
+    assert both.result == PlanResult.unreachable and both.info["failed_stage"] == "pose_error"
     none = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(0, 8)}, config=CFG)
     assert none.result == PlanResult.no_grasp and "grasp" in none.message
     with pytest.raises(ValueError, match="T_obj_part"):

@@ -163,11 +163,15 @@ class PlanConfig(eqx.Module):
     failed), fully open it does not."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
-    approach_candidates: int = 8
+    approach_candidates: int = 32
     """Best trajectory candidates (by cost) whose approach is solved, per tier (best-scored grasps,
-    then spread ones)."""
-    top_k_per_arm: int = 4
-    """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves)."""
+    then spread ones). Their approaches are solved in one ``chunk_size`` batch (padded to it), so
+    up to half of it costs no more than one; the first candidate in cost order whose approach
+    passes wins, so more candidates only add fallbacks."""
+    top_k_per_arm: int = 12
+    """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves; 144 fill one
+    ``chunk_size`` batch, which is padded to 160 anyway). The best few by cost are often rolls of
+    one grasp: on the studio frog all 16 pairs of the best 4 collided (arm against arm or part)."""
     grasp_config: GraspConfig = GraspConfig(num_grasps=64)
     """Antipodal grasp sampling when grasps are not given. More base grasps than RSRD's 10: most
     are removed by seating (e.g. grasps in the middle of a plate put the palm into it; on the
@@ -776,7 +780,7 @@ def _plan_robot(
         return b, alive, counts, target
 
     best = None
-    last_stage = None
+    last_stage = None  # the furthest stage any attempt reached (its failure is the one reported)
     any_grasp = False
     for parts in order:
         assignments = []
@@ -807,17 +811,17 @@ def _plan_robot(
                 continue
             stage = _first_empty_stage(per_arm, att)
             if stage is not None:
-                last_stage = stage
+                last_stage = _furthest(last_stage, stage)
                 continue
             cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info,
                             spread_row)
             if cand is None:
-                last_stage = att.get("failed_stage", "collision")
+                last_stage = _furthest(last_stage, att.get("failed_stage", "collision"))
                 continue
             # approach
             plan = _approach(cand, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info)
             if plan is None:
-                last_stage = "approach"
+                last_stage = _furthest(last_stage, "approach")
                 continue
             if best is None or (plan["tier"], plan["cost"]) < (best["tier"], best["cost"]):
                 best = plan
@@ -826,6 +830,7 @@ def _plan_robot(
 
     info["time_s"] = round(time.perf_counter() - t_start, 3)
     if best is None:
+        info["failed_stage"] = last_stage
         if not any_grasp:
             return _failure(PlanResult.no_grasp, "no antipodal grasp on the requested parts", T_robot_obj, idx, info)
         res, msg = {
@@ -850,6 +855,13 @@ def _plan_robot(
         T_robot_obj=T_robot_obj, position_error=best["pos"], rotation_error=best["rot"],
         min_distance=best["mins"], info=info,
     )
+
+
+def _furthest(a: str | None, b: str) -> str:
+    """The later of two rejection stages (``STAGES`` order): the attempt that got furthest names
+    the failure (an attempt on another part or arm whose grasps never seat says less about why
+    the request failed than one whose seated grasps all missed the pose tolerance)."""
+    return b if a is None or STAGES.index(b) > STAGES.index(a) else a
 
 
 def _exhausting_stage(counts: dict) -> str:
