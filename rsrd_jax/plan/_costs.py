@@ -97,60 +97,44 @@ def strip_robot(robot: YumiModel) -> YumiModel:
     return dataclasses.replace(robot, mjx_model=None)
 
 
-def pose_residual(q: Float[Array, "16"], d: PoseData, p: CostParams) -> Float[Array, " r"]:
-    """Pose residual of one keyframe: per arm 6 (active) + 7 (inactive hold) entries, 26 total,
-    plus 16 ``ref_weight (q - q_ref)`` entries when the data has a joint reference."""
+def _pose_rows(q: Float[Array, "16"], d: PoseData, p: CostParams, T7: Float[Array, "2 7"],
+               J: Float[Array, "2 6 16"] | None = None) -> tuple[Array, Array | None]:
+    """The pose residual at TCP poses ``T7`` of ``q``, and with the TCPs' geometric Jacobians
+    ``J`` (:func:`rsrd_jax.robot.tcp_jacobian`) its Jacobian d r / d q."""
     w = p.weights
-    T = forward_kinematics(p.robot, q, check_finite=False).T_world_tcp
-    tgt = jaxlie.SE3(d.target)
-    pos = (T.translation() - tgt.translation()) * w.position
-    rot = (tgt.rotation().inverse() @ T.rotation()).log() * w.rotation
-    out = []
-    for a, sl in enumerate((RIGHT_ARM, LEFT_ARM)):
-        act = d.active[a]
-        out += [act * pos[a], act * rot[a], (1.0 - act) * w.hold * (q[sl] - p.robot.home[sl])]
-    if d.q_ref is not None:
-        out.append(d.ref_weight * (q - d.q_ref))
-    return jnp.concatenate(out)
-
-
-def _so3_left_jacobian_inverse(phi: Float[Array, "3"]) -> Float[Array, "3 3"]:
-    """J_l^{-1}(phi): ``log(Exp(d) Exp(phi)) = phi + J_l^{-1}(phi) d + O(d^2)`` (Barfoot, *State
-    Estimation for Robotics*, eq. 7.77), Taylor-expanded near 0."""
-    t2 = jnp.sum(phi**2)
-    small = t2 < 1e-6
-    t = jnp.sqrt(jnp.where(small, 1.0, t2))
-    c = jnp.where(small, 1.0 / 12.0 + t2 / 720.0, 1.0 / t**2 - (1.0 + jnp.cos(t)) / (2.0 * t * jnp.sin(t)))
-    x, y, z = phi
-    K = jnp.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], phi.dtype)
-    return jnp.eye(3, dtype=phi.dtype) - 0.5 * K + c * (K @ K)
-
-
-def pose_residual_jacobian(q: Float[Array, "16"], d: PoseData, p: CostParams) -> tuple[Array, Array]:
-    """:func:`pose_residual` and its Jacobian d r / d q (R, 16), analytic: the TCP's geometric
-    Jacobian (:func:`rsrd_jax.robot.tcp_jacobian`) for the position rows and, for the rotation
-    rows ``log(R_target^T R_tcp)``, ``J_l^{-1}(phi) R_target^T`` times its angular rows (a joint
-    turns the TCP by a left increment in the world frame). One FK pass instead of ``jacfwd``'s 16
-    tangents; the residual is the same expression as :func:`pose_residual`."""
-    w = p.weights
-    T7, J = tcp_jacobian(p.robot, q, check_finite=False)
     T, tgt = jaxlie.SE3(T7), jaxlie.SE3(d.target)
     pos = (T.translation() - tgt.translation()) * w.position
-    phi = (tgt.rotation().inverse() @ T.rotation()).log()
-    rot = phi * w.rotation
-    R_t = tgt.rotation().as_matrix()  # (2, 3, 3)
-    J_rot = jnp.einsum("aij,akj,akn->ain", jax.vmap(_so3_left_jacobian_inverse)(phi), R_t, J[:, 3:])
+    R_err = tgt.rotation().inverse() @ T.rotation()
+    rot = R_err.log() * w.rotation
     eye = jnp.eye(q.shape[-1], dtype=q.dtype)
+    if J is not None:
+        # a joint turns the TCP by a left increment in the world frame: d log(R_t^T R) =
+        # J_l^{-1}(phi) R_t^T omega, and J_l^{-1} is the transpose of jaxlie's jlog (J_r^{-1})
+        Jl_inv = jnp.swapaxes(R_err.jlog(), -1, -2)
+        J_rot = jnp.einsum("aij,akj,akn->ain", Jl_inv, tgt.rotation().as_matrix(), J[:, 3:])
     out, jac = [], []
     for a, sl in enumerate((RIGHT_ARM, LEFT_ARM)):
         act = d.active[a]
         hold = (1.0 - act) * w.hold
         out += [act * pos[a], act * rot[a], hold * (q[sl] - p.robot.home[sl])]
-        jac += [act * w.position * J[a, :3], act * w.rotation * J_rot[a], hold * eye[sl]]
+        if J is not None:
+            jac += [act * w.position * J[a, :3], act * w.rotation * J_rot[a], hold * eye[sl]]
     if d.q_ref is not None:
         out.append(d.ref_weight * (q - d.q_ref))
-        jac.append(d.ref_weight * eye)
-    return jnp.concatenate(out), jnp.concatenate(jac)
+        jac.append(d.ref_weight * eye)  # unused without J
+    return jnp.concatenate(out), (jnp.concatenate(jac) if J is not None else None)
+
+
+def pose_residual(q: Float[Array, "16"], d: PoseData, p: CostParams) -> Float[Array, " r"]:
+    """Pose residual of one keyframe: per arm 6 (active) + 7 (inactive hold) entries, 26 total,
+    plus 16 ``ref_weight (q - q_ref)`` entries when the data has a joint reference."""
+    return _pose_rows(q, d, p, forward_kinematics(p.robot, q, check_finite=False).T_world_tcp.wxyz_xyz)[0]
+
+
+def pose_residual_jacobian(q: Float[Array, "16"], d: PoseData, p: CostParams) -> tuple[Array, Array]:
+    """:func:`pose_residual` and its analytic Jacobian d r / d q (R, 16), from one FK pass
+    (:func:`rsrd_jax.robot.tcp_jacobian`) instead of ``jacfwd``'s 16 tangents."""
+    return _pose_rows(q, d, p, *tcp_jacobian(p.robot, q, check_finite=False))
 
 
 def limit_residual(q: Float[Array, "16"], d: None, p: CostParams) -> Float[Array, "16"]:
