@@ -307,6 +307,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
         approach_distance=a.approach, position_tolerance=a.pos_tol, rotation_tolerance_deg=a.rot_tol,
         grasp_position_tolerance=a.grasp_pos_tol, grasp_rotation_tolerance_deg=a.grasp_rot_tol,
+        grasp_keyframe_weight=a.grasp_keyframe_weight,
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
@@ -510,6 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="TCP position tolerance at the first keyframe, the grasp (m)")
     pl.add_argument("--grasp-rot-tol", type=float, default=5.0,
                     help="TCP rotation tolerance at the first keyframe, the grasp (degrees)")
+    pl.add_argument("--grasp-keyframe-weight", type=float, default=1.0,
+                    help="weight of the first keyframe's (the grasp's) pose rows relative to the others")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,

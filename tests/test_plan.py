@@ -142,7 +142,7 @@ def test_analytic_pose_jacobian_matches_autodiff_and_fd(robot):
     for i in range(4):
         q = jnp.asarray(HOME_Q + 0.4 * rng.standard_normal(16), jnp.float32)
         tgt = tcp_poses(robot, q + jnp.asarray(0.3 * rng.standard_normal(16), jnp.float32))
-        act = jnp.asarray([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 1.0]][i])
+        act = jnp.asarray([[1.0, 0.0], [0.0, 1.0], [3.0, 1.0], [1.0, 1.0]][i])
         ref = (q + 0.1, jnp.asarray(2.0)) if i == 3 else (None, None)
         d = PoseData(tgt, act, *ref)
         r0 = pose_residual(q, d, params)
@@ -155,6 +155,14 @@ def test_analytic_pose_jacobian_matches_autodiff_and_fd(robot):
                         - np.asarray(pose_residual(jnp.asarray(qd - eps * e, jnp.float32), d, params), np.float64))
                        / (2 * eps) for e in np.eye(16)], 1)  # fmt: skip
         np.testing.assert_allclose(np.asarray(J1), fd, atol=3e-3)
+    # a weight > 1 (the grasp keyframe) scales the arm's tracking rows and adds no home pull
+    q = jnp.asarray(HOME_Q + 0.3 * rng.standard_normal(16), jnp.float32)
+    tgt = tcp_poses(robot, q + 0.2)
+    r1 = np.asarray(pose_residual(q, PoseData(tgt, jnp.asarray([1.0, 0.0])), params))
+    r3 = np.asarray(pose_residual(q, PoseData(tgt, jnp.asarray([3.0, 0.0])), params))
+    np.testing.assert_allclose(r3[:6], 3.0 * r1[:6], rtol=1e-5, atol=1e-7)
+    assert np.all(r3[6:13] == 0) and np.all(r1[6:13] == 0)
+    np.testing.assert_array_equal(r3[13:], r1[13:])
     # near the target the rotation residual's Jacobian uses the small-angle expansion
     d = PoseData(tcp_poses(robot, jnp.asarray(HOME_Q)), jnp.ones(2))
     _, J1 = pose_residual_jacobian(jnp.asarray(HOME_Q), d, params)
@@ -421,7 +429,7 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     out = tmp_path / "plan"
     rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
                "--out", str(out), "--keyframes", "4", "--chunk", "8", "--max-iterations", "40", "--hands", "none",
-               "--grasps", "2", "--approach-steps", "4", "--rerun", "--extent-meshes"])  # fmt: skip
+               "--grasps", "2", "--approach-steps", "4", "--rerun", "--extent-meshes", "--grasp-keyframe-weight", "3"])  # fmt: skip
     plan = load_plan(out)
     assert rc == 0 and plan.success, plan.info
     k = int(plan.part[plan.active][0])

@@ -76,7 +76,8 @@ class PoseData(eqx.Module):
     target: Float[Array, "*k 2 7"]
     """TCP targets (right, left), robot frame, wxyz_xyz."""
     active: Float[Array, "*k 2"]
-    """1 for an arm that tracks its target, 0 for an arm held near home."""
+    """Weight of an arm's pose rows: > 0 for an arm that tracks its target (1 = the configured
+    position/rotation weights), 0 for an arm held near home."""
     q_ref: Float[Array, "*k 16"] | None = None
     """Optional per-keyframe joint reference (e.g. to end an approach at a given configuration)."""
     ref_weight: Float[Array, "*k"] | None = None
@@ -115,7 +116,7 @@ def _pose_rows(q: Float[Array, "16"], d: PoseData, p: CostParams, T7: Float[Arra
     out, jac = [], []
     for a, sl in enumerate((RIGHT_ARM, LEFT_ARM)):
         act = d.active[a]
-        hold = (1.0 - act) * w.hold
+        hold = (1.0 - jnp.clip(act, 0.0, 1.0)) * w.hold
         out += [act * pos[a], act * rot[a], hold * (q[sl] - p.robot.home[sl])]
         if J is not None:
             jac += [act * w.position * J[a, :3], act * w.rotation * J_rot[a], hold * eye[sl]]
