@@ -265,6 +265,28 @@ def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
         load_plan(tmp_path / "p")
 
 
+def test_grasp_keyframe_weight_pulls_the_first_keyframe_onto_its_target(robot):
+    """A first frame 2 cm off the smooth path: the solver spreads the error over the keyframes with
+    weight 1; with ``grasp_keyframe_weight`` 3 the grasp keyframe lands much closer (same grasp,
+    TCP error from FK of the returned joints)."""
+    traj = _trajectory()
+    traj[0, 0, 4] -= 0.02
+    loose = dataclasses.replace(CFG, position_tolerance=0.05, rotation_tolerance_deg=30.0,
+                                grasp_position_tolerance=0.05, grasp_rotation_tolerance_deg=30.0)  # fmt: skip
+    errs = []
+    for w in (1.0, 3.0):
+        plan = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(1, 0)},
+                          config=dataclasses.replace(loose, grasp_keyframe_weight=w))  # fmt: skip
+        assert plan.success and plan.grasp_index[0] == 0, plan.message
+        T_tgt = (jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[plan.keyframe_indices, 0], jnp.float32))
+                 @ jaxlie.SE3(jnp.asarray(plan.T_part_grasp[0], jnp.float32)))  # fmt: skip
+        tcp = jaxlie.SE3(tcp_poses(robot, jnp.asarray(plan.q_keyframes, jnp.float32))[:, 0])
+        errs.append(np.linalg.norm(np.asarray(tcp.translation() - T_tgt.translation()), axis=-1))
+    assert errs[0][0] > 0.002  # weight 1: 2.6 mm at the grasp
+    assert errs[1][0] < 0.5 * errs[0][0]  # weight 3: 0.3 mm
+    assert errs[1][1:].max() < 0.005
+
+
 def test_infeasible_requests_return_reasons(robot, tmp_path):
     traj = _trajectory()
     far = T_ROBOT_OBJ.copy()
