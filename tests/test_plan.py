@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +22,7 @@ from rsrd_jax.plan import (
     PlanResult,
     PoseData,
     keyframe_indices,
+    plan_config_from_dict,
     plan_robot,
     problem_data,
     resample_keyframes,
@@ -30,6 +32,10 @@ from rsrd_jax.plan import (
 )
 from rsrd_jax.plan._costs import pose_residual, pose_residual_jacobian
 from rsrd_jax.robot import HOME_Q, load_yumi, object_boxes_from_points, tcp_poses
+
+
+def _plain(o):
+    return np.asarray(o).tolist()
 
 
 @pytest.fixture(scope="module")
@@ -255,8 +261,14 @@ def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
     assert back.success and back.result == "success"
     np.testing.assert_allclose(back.q_video, plan.q_video)
     assert back.info["rejections"]["grasp_invalid"] == 0
+    # plan.json records the PlanConfig, and it rebuilds to the same config
+    cfg_back = plan_config_from_dict(back.info["config"])
+    assert cfg_back.grasp_depths == CFG.grasp_depths and isinstance(cfg_back.grasp_depths, tuple)
+    assert float(cfg_back.weights.position) == float(CFG.weights.position)
+    assert json.dumps(dataclasses.asdict(cfg_back), default=_plain) == json.dumps(dataclasses.asdict(CFG), default=_plain)
+    with pytest.raises(ValueError, match="mesh_config.*nope"):
+        plan_config_from_dict({"mesh_config": {"nope": 1}})
     # validation names the file and field
-    import json
     js = tmp_path / "p" / "plan.json"
     meta = json.loads(js.read_text())
     meta["format"] = "nope"

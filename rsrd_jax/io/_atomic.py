@@ -112,6 +112,8 @@ def _json_default(o: Any) -> Any:
         return o.item()
     if isinstance(o, Path):
         return str(o)
+    if hasattr(o, "__array__"):  # jax arrays (e.g. a config's weights)
+        return np.asarray(o).tolist()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 

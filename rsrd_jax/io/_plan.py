@@ -17,7 +17,8 @@ Arrays (K keyframes, T video frames, A approach waypoints; arm 0 = right, 1 = le
     rotation_error       2        max TCP rotation error over keyframes (rad)
     min_distance         3        smallest self / table / object distance (m)
 `plan.json`: format, result (name), message, and the planner's info (chosen parts and arms,
-solver results, rejection counts per stage and attempt, timings). A failed plan has K = T = A = 0.
+solver results, rejection counts per stage and attempt, timings, and under "config" the
+PlanConfig it was planned with). A failed plan has K = T = A = 0.
 """
 
 from __future__ import annotations

@@ -55,6 +55,7 @@ from ._search import (
     grasp_targets,
     keyframe_indices,
     object_geometry,
+    plan_config_from_dict,
     plan_robot,
     resample_keyframes,
 )
@@ -80,6 +81,7 @@ __all__ += [
     "log_plan",
     "object_geometry",
     "part_sdf",
+    "plan_config_from_dict",
     "plan_robot",
     "problem_data",
     "read_robot_object_pose",

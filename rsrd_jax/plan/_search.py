@@ -438,6 +438,30 @@ def _reject(b: _Batch, valid: np.ndarray, cfg: PlanConfig, collision: bool = Tru
 # ----------------------------------------------------------------------------------------------
 
 
+def plan_config_from_dict(d: dict) -> PlanConfig:
+    """The :class:`PlanConfig` a plan was planned with, from its ``info["config"]`` (``plan.json``):
+    nested configs rebuilt, JSON lists back to tuples. Raises ValueError on an unknown field."""
+    return _config_from_dict(PlanConfig(), d, "config")
+
+
+def _config_from_dict(default, d: dict, where: str):
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object of {type(default).__name__} fields, got {type(d).__name__}")
+    names = {f.name for f in dataclasses.fields(default)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ValueError(f"{where}: unknown {type(default).__name__} field(s) {unknown}")
+    kw = {}
+    for k, v in d.items():
+        cur = getattr(default, k)
+        if dataclasses.is_dataclass(cur) and isinstance(v, dict):
+            v = _config_from_dict(cur, v, f"{where}.{k}")
+        elif isinstance(v, list):
+            v = tuple(v)
+        kw[k] = v
+    return dataclasses.replace(default, **kw)
+
+
 def grasp_targets(
     T_robot_obj: Float[np.ndarray, "7"], T_obj_part: Float[np.ndarray, "k 7"], T_part_grasp: Float[np.ndarray, "n 7"]
 ) -> np.ndarray:
@@ -611,7 +635,8 @@ def plan_robot(
             bimanually (that pair only); otherwise, or if that fails, single-arm.
 
     Returns:
-        :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why.
+        :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why. Its
+        ``info["config"]`` is ``config`` as a dict (saved in ``plan.json``).
 
     Raises:
         ValueError: on inconsistent input shapes or a bad part index.
@@ -620,7 +645,9 @@ def plan_robot(
         raise ValueError(f"config.bimanual must be True, False or 'auto', got {config.bimanual!r}")
     args = (robot, part_points, T_obj_part, T_robot_obj, hands, grasps)
     if config.bimanual != "auto":
-        return _plan_robot(*args, config, mesh_points)
+        plan = _plan_robot(*args, config, mesh_points)
+        plan.info["config"] = dataclasses.asdict(config)
+        return plan
     why = "parts given" if config.parts is not None else "no hands" if hands is None else "one part"
     decided, why = False, f"{why}: single-arm"
     pair_config = config
@@ -647,6 +674,7 @@ def plan_robot(
                         bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
         plan = single
     plan.info["bimanual"] = decision
+    plan.info["config"] = dataclasses.asdict(config)  # as given (the decision above may override bimanual/parts)
     return plan
 
 
