@@ -9,6 +9,7 @@ plan), Grasp (held when the motion starts, no slip), Exec (the object's joints e
 did and moved the same way).
 
     python -m experiments.robot_trials [--objects red_box nerf_gun ...] [--yaws 10] [--frames N] [--resume]
+    python -m experiments.robot_trials --merge A.json B.json ... --out STEM   # one table from several runs
 
 The demo is tracked at the object's own frame count (90–120 frames; `--frames N` renders the same
 motion in N frames). `rsrd-jax demo` uses 30 frames to stay within its time budget; on the studio
@@ -175,6 +176,9 @@ def markdown(res: dict) -> str:
     lines.append("")
     lines.append("Failure causes (first failing stage): " + (", ".join(f"{k}: {v}" for k, v in res["failure_causes"].items()) or "none"))
     lines.append("")
+    if any("source" in o for o in res["objects"].values()):
+        lines.append("Sources (merged runs): " + "; ".join(f"{n}: `{o['source']}`" for n, o in res["objects"].items()))
+        lines.append("")
     lines.append("Oracles: hand masks and hand keypoints (demo camera frame) come from the studio; mono-depth is "
                  "the studio's relative-depth oracle. Everything else comes from the scan, the video and the robot view.")
     return "\n".join(lines) + "\n"
@@ -206,6 +210,31 @@ def figure(res: dict, path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+def merge(paths: list[Path]) -> dict:
+    """One table from earlier runs' JSONs (e.g. one run per object): each object's entry is taken
+    from the last file that has it, its source file (and that run's commit, if recorded) kept."""
+    res: dict = {"objects": {}, "config": {"merged": []}}
+    for p in paths:
+        r = json.loads(Path(p).read_text())
+        res["config"]["merged"].append({"file": str(p), "commit": r.get("config", {}).get("commit"),
+                                        "objects": list(r.get("objects", {}))})  # fmt: skip
+        for name, o in r.get("objects", {}).items():
+            res["objects"][name] = {**o, "source": str(p)}
+    if not res["objects"]:
+        raise SystemExit(f"--merge: no object results in {', '.join(map(str, paths))}")
+    return summarise(res)
+
+
+def _commit() -> str | None:
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
+                              cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
 def main(argv=None) -> int:
     from rsrd_jax._cache import enable_compilation_cache
 
@@ -223,10 +252,20 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", action="store_true",
                     help="reuse each object's trial-0 studio, model and track in --work when complete (the track only "
                          "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
+    ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                    help="run nothing: assemble one table from earlier runs' JSONs (each object from the last file "
+                         "that has it) and write it to --out")  # fmt: skip
     a = ap.parse_args(argv)
-    objects = a.objects or list_objects()
-    cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun)
-    res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
+    if a.merge:
+        missing = [p for p in a.merge if not Path(p).is_file()]
+        if missing:
+            raise SystemExit(f"--merge: no such file(s): {', '.join(missing)}")
+        res = merge([Path(p) for p in a.merge])
+    else:
+        objects = a.objects or list_objects()
+        cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun)
+        res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
+        res["config"]["commit"] = _commit()
     out = Path(a.out)
     atomic_write_json(out.with_suffix(".json"), res)
     atomic_write_text(out.with_suffix(".md"), markdown(res))

@@ -80,6 +80,32 @@ def test_robot_trial_rates_are_cumulative():
     assert "| a | 2/2 | 2/2 | 1/2 | 1/2 | 1/2 |" in markdown(res)
 
 
+def test_robot_trials_merge_takes_each_object_from_the_last_run_that_has_it(tmp_path):
+    """`--merge`: one table over several runs' JSONs; an object in two files comes from the later
+    one; totals are recomputed over the merged trials; the sources are listed."""
+    import json
+
+    from experiments.robot_trials import main
+
+    ok = {"init": True, "traj": True, "grasp": True, "exec": True}
+    bad = {"init": True, "traj": False, "grasp": False, "exec": False}
+    t = lambda s, f: dict(stages=s, end_to_end=f is None, failure=f, reason="")  # noqa: E731
+    runs = {"r1": {"a": [t(ok, None), t(bad, "traj")], "b": [t(bad, "traj")]},
+            "r2": {"b": [t(ok, None), t(ok, None)]}}  # fmt: skip
+    for k, objs in runs.items():
+        (tmp_path / f"{k}.json").write_text(json.dumps(
+            {"config": {"commit": k}, "objects": {n: {"trials": tr, "tracking_add_obj_mm": 1.0} for n, tr in objs.items()}}))
+    assert main(["--merge", str(tmp_path / "r1.json"), str(tmp_path / "r2.json"), "--out", str(tmp_path / "m")]) == 0
+    res = json.loads((tmp_path / "m.json").read_text())
+    assert res["objects"]["b"]["source"].endswith("r2.json") and len(res["objects"]["b"]["trials"]) == 2
+    assert res["total"]["trials"] == 4 and res["total"]["end_to_end"] == pytest.approx(3 / 4)
+    assert [m["commit"] for m in res["config"]["merged"]] == ["r1", "r2"]
+    md = (tmp_path / "m.md").read_text()
+    assert "| a | 2/2 | 1/2 | 1/2 | 1/2 | 1/2 |" in md and "| b | 2/2 | 2/2 | 2/2 | 2/2 | 2/2 |" in md and "r2.json" in md
+    with pytest.raises(SystemExit, match="no such file"):
+        main(["--merge", str(tmp_path / "nope.json"), "--out", str(tmp_path / "x")])
+
+
 def test_robot_trials_resume_reuses_only_complete_artefacts_tracked_with_this_config(tmp_path):
     """`--resume` reuses trial 0's studio and model when they are complete, and its track only if
     its stored TrackConfig is the pipeline's: a track made with another motion-prior weight is
