@@ -67,6 +67,10 @@ class PipelineConfig:
     discovery, object-frame ADD per part: stapler 2.6 / 6.0 → 2.1 / 4.5 mm, red_box 2.4 / 10.2
     → 2.8 / 7.5, sunglasses 1.3 / 56.4 / 8.0 → 1.9 / 32.6 / 4.5, frog mean 6.9 → 7.1, nerf_gun
     3.3 / 17.8 → 2.8 / 20.8."""
+    track_hinge_axes: bool = True
+    """Hinge axes in joint discovery (`TrackConfig.hinge_axes`): a part with a joint point turns
+    about a fitted axis instead of a ball joint, so a thin part cannot roll about its own length
+    (measured on the robot trials' builds in session 24, see `experiments/results/`)."""
     track_hands: bool = True
     """Tracking's hand term (`LossWeights.hand`) with the studio's 2D fingertips (an oracle for a
     2D hand detector, `track.StudioFingertips`): each hand's pinched part point follows the
@@ -113,7 +117,8 @@ class PipelineConfig:
         from .track import LossWeights, TrackConfig
 
         return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
-                           lr_start=self.track_lr_start, weights=LossWeights(motion=self.track_motion))  # fmt: skip
+                           hinge_axes=self.track_hinge_axes, lr_start=self.track_lr_start,
+                           weights=LossWeights(motion=self.track_motion))  # fmt: skip
 
 
 def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.ndarray:

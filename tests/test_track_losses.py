@@ -6,7 +6,7 @@ import jaxlie
 import numpy as np
 import pytest
 
-from rsrd_jax.track import arap_loss, barron_loss, hand_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, seed_rotations, support_loss
+from rsrd_jax.track import arap_loss, barron_loss, hand_loss, touch_loss, depth_ranking_loss, feature_loss, pose_smoothness, prismatic_loss, revolute_loss, seed_rotations, support_loss
 
 
 def test_barron_special_cases():
@@ -265,6 +265,124 @@ def test_contact_band_pairs_match_brute_force_and_joint_slots_are_invisible(rng)
     cam = Camera(Intrinsics.create(80.0, 80.0, 24.0, 24.0, 48, 48), look_at(np.array([0.02, -0.08, 0.06]), np.array([0.02, 0.015, 0.01])))
     cfg = choose_config(jm.gaussians, cam)
     np.testing.assert_allclose(np.asarray(render(jm.gaussians, cam, cfg).rgb), np.asarray(render(g, cam, cfg).rgb), atol=1e-6)
+
+
+def test_hinge_axis_picks_the_axis_that_moves_the_points_not_the_rolled_rotation():
+    """A thin bar (long along x, thin along z) turns 40° about z through its end; the tracked
+    motion adds a roll of up to 25° about the bar's own length. Among its principal axes and the
+    table normal the true axis wins (its residual is the roll's small point motion), though the
+    rotation's own axis is tilted by the roll."""
+    from rsrd_jax.track._joints import hinge_axis, slide_axes
+
+    rng = np.random.default_rng(1)
+    bar = np.stack([rng.uniform(0.0, 0.1, 400), rng.uniform(-0.006, 0.006, 400), rng.uniform(-0.002, 0.002, 400)], 1)
+    bar += np.array([0.01, 0.0, 0.003])
+    cents = np.array([[-0.03, 0.0, 0.003], bar.mean(0)])
+    X = np.array([0.01, 0.0, 0.003])  # the bar's end
+    F = 16
+    ang = np.linspace(0, np.deg2rad(40), F)
+    roll = np.deg2rad(25) * np.sin(np.linspace(0, np.pi, F))
+    T = np.zeros((F, 2, 7))
+    for f in range(F):
+        Rz = jaxlie.SO3.from_z_radians(float(ang[f]))
+        R = Rz @ jaxlie.SO3.from_x_radians(float(roll[f]))  # roll about the bar's length, then the hinge
+        # part 1 maps its rest-centroid frame to the object: R about the joint point
+        t = np.asarray(X + np.asarray(R.as_matrix()) @ (cents[1] - X))
+        T[f, 0] = np.concatenate([[1, 0, 0, 0], cents[0]])
+        T[f, 1] = np.concatenate([np.asarray(R.wxyz), t])
+    cand = np.concatenate([slide_axes(bar), [[0.0, 0.0, 1.0]]])
+    a, rms = hinge_axis(T, cents, 1, 0, X, bar, cand)
+    assert abs(a @ np.array([0.0, 0.0, 1.0])) > 0.999
+    assert rms.min() < 0.002 and np.sort(rms)[2] > 5 * rms.min()  # the two axes along z tie; the others lose
+    # without the roll the true axis explains the motion exactly
+    T2 = T.copy()
+    for f in range(F):
+        R = jaxlie.SO3.from_z_radians(float(ang[f]))
+        T2[f, 1] = np.concatenate([np.asarray(R.wxyz), X + np.asarray(R.as_matrix()) @ (cents[1] - X)])
+    _, rms2 = hinge_axis(T2, cents, 1, 0, X, bar, np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
+    assert rms2[0] < 1e-5 and rms2[1] > 0.01
+
+
+def test_discover_joints_gives_a_rolling_bar_its_hinge_axis_and_a_slide_hypothesis_drops_it(rng):
+    """`_discover_joints` on a stubbed first pass (a bar turning 40° about the vertical through its
+    end on a base, rolling up to 25° about its length): with `hinge_axes` the second pass's
+    TrackModel carries one revolute entry (bar, base) about z at the bar's radius, the joint point
+    lies on the pivot; without it no entry has weight; a slide hypothesis on the bar drops it."""
+    import types
+
+    import equinox as eqx
+
+    from rsrd_jax.splat import Gaussians
+    from rsrd_jax.track import TrackConfig
+    from rsrd_jax.track._dpm import TrackModel, Weights
+    from rsrd_jax.track._joints import with_joint_slots
+    from rsrd_jax.track._track import _discover_joints, _with_slide
+
+    base = rng.uniform([-0.06, -0.02, 0.0], [0.0, 0.02, 0.006], (400, 3))
+    bar = np.stack([rng.uniform(0.0, 0.1, 300), rng.uniform(-0.006, 0.006, 300), rng.uniform(0.0, 0.004, 300)], 1)
+    means = np.concatenate([base, bar])
+    lab = np.r_[np.zeros(400, int), np.ones(300, int)]
+    n = len(means)
+    g = Gaussians.create(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.002)), np.full(n, 1.0),
+                         rng.uniform(0, 1, (n, 3)), features=rng.normal(size=(n, 4)), part_ids=lab)  # fmt: skip
+
+    class _Model(eqx.Module):  # the fields `with_joint_slots` and `TrackModel` read of an ObjectModel
+        gaussians: Gaussians
+        arap_pairs: jax.Array
+        part_centroids: jax.Array
+        decoder: eqx.Module
+        num_parts: int = eqx.field(static=True)
+
+    cents = np.array([base.mean(0), bar.mean(0)])
+    model = _Model(g, jnp.zeros((0, 2), jnp.int32), jnp.asarray(cents, jnp.float32), eqx.nn.Identity(), 2)
+    jm, neighbour = with_joint_slots(model, 0.003, 0.01)
+    tm = TrackModel.from_object_model(jm, 10_000)
+    X = np.array([0.0, 0.0, 0.003])  # the pivot: the bar's end, where it meets the base
+    F = 16
+    T = []
+    for f, (a, r) in enumerate(zip(np.linspace(0, np.deg2rad(40), F), np.deg2rad(25) * np.sin(np.linspace(0, np.pi, F)))):
+        R = jaxlie.SO3.from_z_radians(float(a)) @ jaxlie.SO3.from_x_radians(float(r))
+        t = X + np.asarray(R.as_matrix()) @ (cents[1] - X)
+        T.append(jaxlie.SE3(jnp.asarray([[1, 0, 0, 0, *cents[0]], [*np.asarray(R.wxyz), *t]], jnp.float32)))
+    stub = lambda *a, **k: types.SimpleNamespace(T_parts=T, key=a[2])  # noqa: E731
+    cfg = TrackConfig(joints=True, hinge_axes=True)
+    w = Weights.from_config(cfg, False, 0.05)
+    tm_b, info, _, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), stub, np.array([0.0, 0.0, 1.0]))
+    assert np.asarray(tm_b.hinge_parts).tolist() == [[1, 0]] and np.asarray(tm_b.hinge_weight).tolist() == [1.0]
+    assert abs(np.asarray(tm_b.hinge_axes)[0] @ np.array([0.0, 0.0, 1.0])) > 0.999, info
+    r90 = np.percentile(np.linalg.norm(bar - cents[1], axis=1), 90)
+    assert float(tm_b.hinge_lengths[0]) == pytest.approx(r90, rel=1e-3)  # the bar's 90th-percentile radius
+    assert np.linalg.norm(np.cross(np.asarray(info["1"]["point"]) - X, [0.0, 0.0, 1.0])) < 2e-3  # on the pivot
+    plain, _, _, _ = _discover_joints(tm, neighbour, w, TrackConfig(joints=True), jax.random.key(0), stub)
+    assert float(np.sum(np.asarray(plain.hinge_weight))) == 0.0
+    slid = _with_slide(tm_b, 1, 0, np.array([1.0, 0.0, 0.0]), 0.05, np.zeros(len(np.asarray(tm_b.arap_weight)), bool), 0, True)
+    assert float(np.sum(np.asarray(slid.hinge_weight))) == 0.0 and float(np.sum(np.asarray(slid.slide_weight))) == 1.0
+
+
+def test_revolute_loss_allows_only_turns_about_the_axis():
+    """Part 1 hinged to part 0 about z: zero at rest, for any turn about z (with any translation)
+    and for a rigid motion of the whole object; an off-axis turn costs Barron's closed form of the
+    angle times the length; the gradient equals central finite differences."""
+    c = jnp.asarray([[0.0, 0.0, 0.0], [0.03, 0.01, 0.02]])
+    rest = jaxlie.SE3.from_translation(c)
+    parts, axes = jnp.asarray([[1, 0]]), jnp.asarray([[0.0, 0.0, 1.0]])
+    lengths, w, cs = jnp.asarray([0.02]), jnp.ones(1), 0.001
+    loss = lambda T: float(revolute_loss(T, parts, axes, lengths, w, 1.0, cs))  # noqa: E731
+    turn = lambda R, d=(0.0, 0.0, 0.0): jaxlie.SE3(rest.wxyz_xyz.at[1, :4].set(R.wxyz).at[1, 4:].add(jnp.asarray(d)))  # noqa: E731
+    assert loss(rest) == pytest.approx(0.0, abs=1e-6)
+    assert loss(turn(jaxlie.SO3.from_z_radians(0.7), (0.01, -0.02, 0.005))) == pytest.approx(0.0, abs=1e-6)
+    G = jaxlie.SE3.exp(jnp.array([0.05, -0.02, 0.1, 0.3, -0.2, 0.5]))
+    moved = jaxlie.SE3(jnp.stack([(G @ jaxlie.SE3(T)).wxyz_xyz for T in turn(jaxlie.SO3.from_z_radians(-0.4)).wxyz_xyz]))
+    assert loss(moved) == pytest.approx(0.0, abs=2e-3)
+    # a 0.1 rad roll about x: sqrt((0.1 · length / c)^2 + 1) - 1
+    assert loss(turn(jaxlie.SO3.from_x_radians(0.1))) == pytest.approx(np.sqrt((0.1 * 0.02 / cs) ** 2 + 1) - 1, rel=1e-3)
+    T0 = turn(jaxlie.SO3.from_z_radians(0.3) @ jaxlie.SO3.from_y_radians(0.05))
+    f = lambda d: revolute_loss(jaxlie.SE3(T0.wxyz_xyz.at[1].set((jaxlie.SE3(T0.wxyz_xyz[1]) @ jaxlie.SE3.exp(d)).wxyz_xyz)),
+                                parts, axes, lengths, w, 1.0, cs)  # noqa: E731  # fmt: skip
+    g = np.asarray(jax.grad(f)(jnp.zeros(6)))
+    h = 1e-4
+    fd = [(float(f(h * e)) - float(f(-h * e))) / (2 * h) for e in np.eye(6, dtype=np.float32)]
+    np.testing.assert_allclose(g, fd, rtol=2e-2, atol=2e-2)
 
 
 def test_prismatic_loss_allows_only_the_slide():

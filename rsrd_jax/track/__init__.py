@@ -26,6 +26,7 @@ from ._losses import (
     hand_loss as hand_loss,
     pose_smoothness as pose_smoothness,
     prismatic_loss as prismatic_loss,
+    revolute_loss as revolute_loss,
     support_loss as support_loss,
 )
 from ._observe import (

@@ -95,6 +95,13 @@ class TrackConfig(eqx.Module):
     with 25 steps instead lost red_box: 12.8 / 18.8 mm.)"""
     joint_min_angle_deg: float = 5.0
     """Smallest rotation relative to the neighbour part for which a joint point is fitted."""
+    hinge_axes: bool = False
+    """With `joints`: each part with a fitted joint point also gets a hinge axis (`hinge_axis`:
+    among its principal axes and the support plane's normal, the one whose turns through the
+    joint point best explain the first pass's point motion), and the second pass penalises its
+    rotation off that axis relative to its neighbour (the revolute term, `revolute_loss`, at the
+    ARAP weight). A ball joint leaves a thin part's roll about its own length to the features,
+    which barely see it."""
     slides: bool = True
     """With `joints`: slide hypotheses. A part that moved relative to its neighbour in the first
     pass by more than `slide_min_m` and either did not turn or got a joint point far from the

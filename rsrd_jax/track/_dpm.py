@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_loss, pose_smoothness, prismatic_loss, support_loss, touch_loss
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_loss, pose_smoothness, prismatic_loss, revolute_loss, support_loss, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -61,6 +61,14 @@ class TrackModel(eqx.Module):
     """Radius of each sliding part (metres; converts its rotation residual to a length)."""
     slide_weight: Float[Array, " q"]
     """Weight of each slide joint (one zero-weight dummy entry when there are none)."""
+    hinge_parts: Int[Array, "r 2"]
+    """Hinge axes of the revolute term (`revolute_loss`): (part, neighbour) per joint."""
+    hinge_axes: Float[Array, "r 3"]
+    """Unit hinge axis of each joint (object frame at rest)."""
+    hinge_lengths: Float[Array, " r"]
+    """Radius of each hinged part (metres; converts its off-axis rotation to a length)."""
+    hinge_weight: Float[Array, " r"]
+    """Weight of each hinge axis (one zero-weight dummy entry when there are none)."""
     support_plane: Float[Array, "4"]
     """(n, d): the table the object rests on, n·x = d in the object frame (`support_loss`); a
     plane 1 km below the object when unknown (the term is then zero)."""
@@ -125,6 +133,10 @@ class TrackModel(eqx.Module):
             slide_axes=jnp.asarray([[1.0, 0.0, 0.0]], jnp.float32),
             slide_lengths=jnp.zeros(1, jnp.float32),
             slide_weight=jnp.zeros(1, jnp.float32),
+            hinge_parts=jnp.zeros((1, 2), jnp.int32),
+            hinge_axes=jnp.asarray([[0.0, 0.0, 1.0]], jnp.float32),
+            hinge_lengths=jnp.zeros(1, jnp.float32),
+            hinge_weight=jnp.zeros(1, jnp.float32),
             support_plane=jnp.asarray([0.0, 0.0, 1.0, -1e3] if support_plane is None else support_plane, jnp.float32),
             num_features=int(g.num_features),
             num_parts=P,
@@ -313,17 +325,19 @@ def frame_objective(
                          tm.touch_direction, tm.touch_pairs, w.arap_alpha, w.arap_scale)  # fmt: skip
     l_slide = prismatic_loss(T_obj_part, tm.part_centroids, tm.slide_parts, tm.slide_axes, tm.slide_lengths,
                              tm.slide_weight, w.arap_alpha, w.arap_scale)  # fmt: skip
+    l_hinge = revolute_loss(T_obj_part, tm.hinge_parts, tm.hinge_axes, tm.hinge_lengths, tm.hinge_weight,
+                            w.arap_alpha, w.arap_scale)  # fmt: skip
     l_support = support_loss(r.means, tm.gaussians.means, tm.support_plane, w.arap_scale)
     l_hand = hand_loss(T_obj_part, T_cam_obj, obs.intrinsics, obs.hand_part, obs.hand_point, obs.hand_uv, obs.hand_weight,
                        w.hand_alpha, w.hand_scale)  # fmt: skip
-    total = (w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide) + w.touch * l_touch
+    total = (w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide + l_hinge) + w.touch * l_touch
              + w.support * l_support + w.hand * l_hand)
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "support": l_support, "hand": l_hand, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "hinge": l_hinge, "support": l_support, "hand": l_hand, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
 
 

@@ -163,3 +163,38 @@ def slide_axes(points: np.ndarray) -> np.ndarray:
     its front panel's normal)."""
     _, _, Vt = np.linalg.svd(points - points.mean(0), full_matrices=False)
     return Vt
+
+
+def hinge_axis(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int, point: np.ndarray,
+               points: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The hinge axis of part k relative to `nb` among `candidates` (C×3 directions, object frame
+    at rest): the one about which turns through `point` explain the pass's motion of k's
+    `points` (N×3, object frame at rest) best. For each axis and frame the best angle is the 2D
+    Procrustes solution in the plane normal to the axis; the score is the RMS point residual.
+    A thin part's roll about its own length barely moves its points, so the tracked rotation's
+    own axis (which includes that roll) is not a candidate: the residual is measured on points.
+
+    Returns:
+        (the chosen unit axis, C RMS residuals in metres).
+    """
+    T = np.asarray(jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32)).as_matrix(), np.float64)
+    Rk, tk, Rn, tn = T[:, k, :3, :3], T[:, k, :3, 3], T[:, nb, :3, :3], T[:, nb, :3, 3]
+    pk = np.asarray(points, np.float64) - centroids[k]
+    world = np.einsum("fij,nj->fni", Rk, pk) + tk[:, None]  # T_obj_part: part frame (origin c_k) -> object
+    # into nb's frame at rest (object axes), relative to the joint point
+    q = np.einsum("fji,fnj->fni", Rn, world - tn[:, None]) + centroids[nb] - point
+    p = np.asarray(points, np.float64) - point
+    rms = []
+    for a in np.asarray(candidates, np.float64):
+        a = a / np.linalg.norm(a)
+        pp = p - np.outer(p @ a, a)
+        qp = q - (q @ a)[..., None] * a
+        th = np.arctan2(np.einsum("nj,fnj->f", np.cross(a, pp), qp), np.einsum("nj,fnj->f", pp, qp))
+        # p turned about a by th (Rodrigues) against the pass's points
+        c, s_ = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+        rot = p[None] * c + np.cross(a, p)[None] * s_ + np.outer(p @ a, a)[None] * (1 - c)
+        rms.append(float(np.sqrt(np.mean(np.sum((rot - q) ** 2, -1)))))
+    rms = np.asarray(rms)
+    best = np.asarray(candidates, np.float64)[int(np.argmin(rms))]
+    return best / np.linalg.norm(best), rms
+

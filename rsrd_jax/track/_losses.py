@@ -139,6 +139,31 @@ def prismatic_loss(
     return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
 
 
+def revolute_loss(
+    T_obj_part: jaxlie.SE3,
+    parts: Int[Array, "q 2"],
+    axes: Float[Array, "q 3"],
+    lengths: Float[Array, " q"],
+    weight: Float[Array, " q"],
+    alpha: Float[Array, ""] | float,
+    scale: Float[Array, ""] | float,
+) -> Float[Array, ""]:
+    """Hinge axes: part k = parts[i, 0] turns relative to part n = parts[i, 1] only about
+    `axes[i]` (a unit vector in n's frame, i.e. the object frame at rest); where the axis passes
+    is left to the joint point's ARAP pair (`with_joint_slots`).
+
+    With R_rel = R_n⁻¹ R_k and ω = log(R_rel), the residual is ω's component orthogonal to the
+    axis (radians) times `lengths[i]` (metres at the part's radius), through Barron's loss at
+    `scale`. Zero at rest, for any rigid motion of the whole object, for any turn about the axis
+    and for any translation; weighted mean over the entries."""
+    Rk = jaxlie.SO3(T_obj_part.wxyz_xyz[parts[:, 0], :4])
+    Rn = jaxlie.SO3(T_obj_part.wxyz_xyz[parts[:, 1], :4])
+    w_rel = (Rn.inverse() @ Rk).log()
+    off = w_rel - jnp.sum(w_rel * axes, -1, keepdims=True) * axes
+    per = barron_loss(jnp.linalg.norm(off + 1e-12, axis=-1) * lengths, alpha, scale)
+    return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
 def hand_loss(
     T_obj_part: jaxlie.SE3,
     T_cam_obj: jaxlie.SE3,

@@ -18,7 +18,7 @@ from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
-from ._joints import fit_joint_point, is_slide_candidate, joint_slots, slide_axes, with_joint_slots
+from ._joints import fit_joint_point, hinge_axis, is_slide_candidate, joint_slots, slide_axes, with_joint_slots
 from ._init import initialize_pose
 from ._hands import HandAnchors, update_hand_anchors, with_hand_anchors
 from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
@@ -186,7 +186,9 @@ def track_video(
     joint_info: dict = {}
     candidates: list = []
     if use_joints:
-        tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass)
+        up = model.meta.get("support_plane") if config.support_plane is None else config.support_plane
+        tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass,
+                                                           None if up is None else np.asarray(up, np.float64)[:3])  # fmt: skip
         timings["joint_pass_s"] = time.perf_counter() - t_frames
     vh = config.velocity_hypothesis if not candidates or config.slide_velocity is None else config.slide_velocity
     key_b = key
@@ -278,9 +280,11 @@ def track_video(
     )
 
 
-def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, config, key, per_frame_pass):
+def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, config, key, per_frame_pass, up=None):
     """`TrackConfig.joints`: first pass on the contact band (weak, saturating ARAP), joint points
-    fitted from it, and the TrackModel of the second pass (tied at the joints, pivoting there)."""
+    fitted from it, and the TrackModel of the second pass (tied at the joints, pivoting there;
+    with `config.hinge_axes` also turning about a fitted axis; `up`: the support plane's normal,
+    a candidate axis)."""
     slots = joint_slots(tm)
     ids = np.asarray(tm.gaussians.part_ids)
     pairs = np.asarray(tm.arap_pairs)
@@ -305,6 +309,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     pw = np.where(is_slot, 0.0, weak).astype(np.float32)
     info = {}
     candidates: list = []
+    hinges: list = []
     slot_gaussian = np.zeros(len(means), bool)
     slot_gaussian[[x for i, j, _ in slots.values() for x in (i, j)]] = True
     for k, (i, j, p) in slots.items():
@@ -321,10 +326,20 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         means[i] = means[j] = X
         pw[p] = 1.0
         pw[mine & ~is_slot] = 0.0
+        if config.hinge_axes:
+            cand = slide_axes(part) if up is None else np.concatenate([slide_axes(part), [up / np.linalg.norm(up)]])
+            a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand)
+            hinges.append((k, nb, a, radius))
+            info[str(k)].update(hinge_axis=[float(v) for v in a], hinge_candidates=np.round(cand, 4).tolist(),
+                                hinge_rms_mm=np.round(1e3 * rms, 2).tolist())  # fmt: skip
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
     piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
                        (g, jnp.asarray(pw), jnp.asarray(use * piv, jnp.float32)))  # fmt: skip
+    if hinges:
+        tm_b = eqx.tree_at(lambda m: (m.hinge_parts, m.hinge_axes, m.hinge_lengths, m.hinge_weight), tm_b, (
+            jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
+            jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
     return tm_b, info, key, candidates
 
 
@@ -340,6 +355,9 @@ def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask,
     piv = contact_pivots(np.asarray(tm.gaussians.means, np.float64), np.asarray(tm.gaussians.part_ids), np.asarray(tm.arap_pairs),
                          pw, np.asarray(tm.part_centroids, np.float64), P, root_too=P == 2 and bool((pw[slot_pairs] > 0).any()))  # fmt: skip
     piv = piv if use_pivots else 0 * piv
+    # a sliding part has no hinge axis in this hypothesis
+    hw = np.where(np.asarray(tm.hinge_parts)[:, 0] == k, 0.0, np.asarray(tm.hinge_weight)).astype(np.float32)
+    tm = eqx.tree_at(lambda m: m.hinge_weight, tm, jnp.asarray(hw))
     entry = (np.asarray([[k, nb]]), np.asarray([axis]), np.asarray([length]), np.ones(1))
     old = (np.asarray(tm.slide_parts), np.asarray(tm.slide_axes), np.asarray(tm.slide_lengths), np.asarray(tm.slide_weight))
     keep = old[3] > 0
