@@ -129,14 +129,21 @@ def prismatic_loss(
     `lengths[i]` (metres at the part's radius), each through Barron's loss at `scale`. Zero at
     rest, for any rigid motion of the whole object and for any slide along the axis; weighted
     mean over the entries."""
-    Tk = jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 0]])
-    Tn = jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 1]])
-    rel = Tn.inverse() @ Tk
-    d = rel.translation() - (centroids[parts[:, 0]] - centroids[parts[:, 1]])
-    perp = d - jnp.sum(d * axes, -1, keepdims=True) * axes
+    rel = _relative(T_obj_part, parts)
+    perp = _off_axis(rel.translation() - (centroids[parts[:, 0]] - centroids[parts[:, 1]]), axes)
     ang = jnp.linalg.norm(rel.rotation().log() + 1e-12, axis=-1)
     per = barron_loss(jnp.linalg.norm(perp + 1e-12, axis=-1), alpha, scale) + barron_loss(ang * lengths, alpha, scale)
     return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def _relative(T_obj_part: jaxlie.SE3, parts: Int[Array, "q 2"]) -> jaxlie.SE3:
+    """T_n⁻¹ T_k of each (k, n) row of `parts`."""
+    return jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 1]]).inverse() @ jaxlie.SE3(T_obj_part.wxyz_xyz[parts[:, 0]])
+
+
+def _off_axis(v: Float[Array, "q 3"], axes: Float[Array, "q 3"]) -> Float[Array, "q 3"]:
+    """The component of each v orthogonal to its unit axis."""
+    return v - jnp.sum(v * axes, -1, keepdims=True) * axes
 
 
 def revolute_loss(
@@ -156,10 +163,7 @@ def revolute_loss(
     axis (radians) times `lengths[i]` (metres at the part's radius), through Barron's loss at
     `scale`. Zero at rest, for any rigid motion of the whole object, for any turn about the axis
     and for any translation; weighted mean over the entries."""
-    Rk = jaxlie.SO3(T_obj_part.wxyz_xyz[parts[:, 0], :4])
-    Rn = jaxlie.SO3(T_obj_part.wxyz_xyz[parts[:, 1], :4])
-    w_rel = (Rn.inverse() @ Rk).log()
-    off = w_rel - jnp.sum(w_rel * axes, -1, keepdims=True) * axes
+    off = _off_axis(_relative(T_obj_part, parts).rotation().log(), axes)
     per = barron_loss(jnp.linalg.norm(off + 1e-12, axis=-1) * lengths, alpha, scale)
     return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
 
