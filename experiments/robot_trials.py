@@ -252,6 +252,10 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", action="store_true",
                     help="reuse each object's trial-0 studio, model and track in --work when complete (the track only "
                          "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
+    ap.add_argument("--extent-meshes", action="store_true",
+                    help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
+    ap.add_argument("--grasp-keyframe-weight", type=float, default=1.0,
+                    help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="run nothing: assemble one table from earlier runs' JSONs (each object from the last file "
                          "that has it) and write it to --out")  # fmt: skip
@@ -263,7 +267,8 @@ def main(argv=None) -> int:
         res = merge([Path(p) for p in a.merge])
     else:
         objects = a.objects or list_objects()
-        cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun)
+        cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
+                             plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight)  # fmt: skip
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
         res["config"]["commit"] = _commit()
     out = Path(a.out)

@@ -93,6 +93,8 @@ class PipelineConfig:
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
     trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
     the jaw (Grasp fails)."""
+    plan_grasp_keyframe_weight: float = 1.0
+    """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -305,7 +307,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         hand_parts = anchored_hand_parts(traj)
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
-                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin),
+                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
+                                            grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight),
                           mesh_points=mesh_points, hand_parts=hand_parts)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
