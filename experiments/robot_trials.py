@@ -229,8 +229,10 @@ def _commit() -> str | None:
     import subprocess
 
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
-                              cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
+        git = lambda *a: subprocess.run(["git", *a], capture_output=True, text=True, check=True,  # noqa: E731
+                                        cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", "rsrd_jax", "experiments/robot_trials.py")
+        return git("rev-parse", "HEAD") + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return None
 
@@ -269,8 +271,9 @@ def main(argv=None) -> int:
         objects = a.objects or list_objects()
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
                              plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight)  # fmt: skip
+        commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
-        res["config"]["commit"] = _commit()
+        res["config"]["commit"] = commit
     out = Path(a.out)
     atomic_write_json(out.with_suffix(".json"), res)
     atomic_write_text(out.with_suffix(".md"), markdown(res))
