@@ -71,7 +71,8 @@ class PipelineConfig:
     """Hinge axes in joint discovery (`TrackConfig.hinge_axes`): a part with a joint point turns
     about a fitted axis instead of a ball joint, so a thin part cannot roll about its own length
     (session 24, `experiments/results/hinge_axes_s24.md`: scissors 7.85 → 4.66 mm, wire_cutter
-    7.64 → 4.77; robot trials wire_cutter 6/10 → 10/10, frog 0/10 → 6/10)."""
+    7.64 → 4.77; robot trials wire_cutter 10/10 (6/10 in session 22), frog
+    6/10 (0/10 on the same build without))."""
     track_hands: bool = True
     """Tracking's hand term (`LossWeights.hand`) with the studio's 2D fingertips (an oracle for a
     2D hand detector, `track.StudioFingertips`): each hand's pinched part point follows the

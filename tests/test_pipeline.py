@@ -20,7 +20,7 @@ from rsrd_jax.studio import StudioConfig, make_object
 def test_pipeline_end_to_end_writes_every_artefact(tmp_path):
     cfg = PipelineConfig(scan_views=12, scan_size=(128, 96), demo_frames=12, demo_size=(192, 144), fit_iterations=250,
                          field_iterations=150, max_gaussians=4000, track_steps=20, track_roi=160, init_iters=40,
-                         register_seeds=8, rerun=False, sim_video=False)  # fmt: skip
+                         register_seeds=8, rerun=False, sim_video=False, plan_grasp_keyframe_weight=2.0)  # fmt: skip
     rep = run_pipeline("red_box", tmp_path / "run", cfg, log=lambda m: None)
     out = tmp_path / "run"
     for f in ("studio/object.json", "model/model.json", "track/trajectory.npz", "register/registration.json",
@@ -36,8 +36,18 @@ def test_pipeline_end_to_end_writes_every_artefact(tmp_path):
     assert traj.num_frames == 12 and np.all(np.isfinite(traj.T_obj_part))
     plan = load_plan(out / "plan")
     assert plan.result == rep["plan"]["result"] and plan.info["num_parts"] == 2
+    # the stages ran with the pipeline's options (recorded in the artefacts)
+    assert plan.info["config"]["grasp_keyframe_weight"] == 2.0
+    assert plan.info["config"]["collision_margin"] == pytest.approx(cfg.plan_collision_margin)
+    assert traj.meta["config"]["hinge_axes"] is True and traj.meta["config"]["joints"] is True
     for k in ("studio", "build", "track", "register", "plan", "simulate"):
         assert rep[k]["time_s"] > 0
+
+
+def test_pipeline_track_config_carries_the_pipeline_options():
+    on, off = PipelineConfig().track_config(), PipelineConfig(track_hinge_axes=False, track_joints=False).track_config()
+    assert on.hinge_axes and on.joints and not off.hinge_axes and not off.joints
+    assert on.weights.motion == PipelineConfig().track_motion and on.lr_start == PipelineConfig().track_lr_start
 
 
 def test_hand_keypoints_follow_the_tracked_object_frame(tmp_path):
