@@ -256,7 +256,7 @@ def main(argv=None) -> int:
                          "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
     ap.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
-    ap.add_argument("--grasp-keyframe-weight", type=float, default=1.0,
+    ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="run nothing: assemble one table from earlier runs' JSONs (each object from the last file "

@@ -513,7 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="TCP position tolerance at the first keyframe, the grasp (m)")
     pl.add_argument("--grasp-rot-tol", type=float, default=5.0,
                     help="TCP rotation tolerance at the first keyframe, the grasp (degrees)")
-    pl.add_argument("--grasp-keyframe-weight", type=float, default=1.0,
+    pl.add_argument("--grasp-keyframe-weight", type=float, default=3.0,
                     help="weight of the first keyframe's (the grasp's) pose rows relative to the others")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip

@@ -95,8 +95,8 @@ class PipelineConfig:
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
     trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
     the jaw (Grasp fails)."""
-    plan_grasp_keyframe_weight: float = 1.0
-    """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows."""
+    plan_grasp_keyframe_weight: float = 3.0
+    """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02

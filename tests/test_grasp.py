@@ -76,11 +76,14 @@ def test_fixed_alpha_is_used_and_plain_alpha_rule_is_available():
 
 
 def test_alpha_shape_keeps_the_studio_drawer_open():
-    """The studio toy_drawer's drawer (a floor, a front panel and a knob: an open container)
+    """The studio toy_drawer's drawer (a floor, a front panel and a knob on a stem: an open container)
     keeps its volume: the fillets an alpha ball leaves in its inner corners grow the volume by
     5–15 % per alpha step, and the auto alpha must not read that as an unsealed surface and
     sweep on until the space above the floor is filled (a solid block: no grasp on the panel).
-    Reference: the volume of the drawer's MuJoCo box geoms (they do not overlap)."""
+    Reference: the volume of the drawer's MuJoCo box geoms (they do not overlap). The lower bound
+    allows for the decimation to 200 faces, which rounds the 6 mm plates and the knob's head:
+    0.74–0.92 of the true volume over sampling seeds (0.73–0.95 without smoothing, 0.92–0.98
+    without decimation); a fragmented or leaking wrap loses far more."""
     import mujoco
 
     from rsrd_jax.studio import SceneOptions, build_scene, get_object, part_surface_points
@@ -88,11 +91,12 @@ def test_alpha_shape_keeps_the_studio_drawer_open():
     scene = build_scene(get_object("toy_drawer"), np.eye(4), SceneOptions(64, 48, 45.0, 0))
     m, body = scene.model, scene.body_ids[1]
     boxes = [g for g in range(m.ngeom) if m.geom_bodyid[g] == body and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
-    assert len(boxes) == 3
+    assert len(boxes) == 4
     true_volume = sum(8 * np.prod(m.geom_size[g]) for g in boxes)
-    mesh = build_part_mesh(part_surface_points(m, body, 1500, 0))
-    assert mesh.method == "alpha_shape" and mesh.watertight, mesh.reason
-    assert 0.8 * true_volume < mesh.volume < 1.25 * true_volume, (mesh.volume, true_volume, mesh.alpha)
+    for seed in (0, 1):
+        mesh = build_part_mesh(part_surface_points(m, body, 1500, seed))
+        assert mesh.method == "alpha_shape" and mesh.watertight, mesh.reason
+        assert 0.7 * true_volume < mesh.volume < 1.25 * true_volume, (mesh.volume, true_volume, mesh.alpha)
 
 
 def test_alpha_shape_keeps_concavity_that_the_hull_fills():

@@ -640,13 +640,8 @@ def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [
-    "red_box", "nerf_gun", "scissors", "sunglasses",
-    pytest.param("bear", marks=pytest.mark.xfail(strict=True, reason="approach: the pads, opened 10 mm beyond the arm, touch the torso (3.8 mm)")),
-    "stapler", "led_light", "wire_cutter", "usb_plug",
-    pytest.param("toy_drawer", marks=pytest.mark.xfail(strict=True, reason="approach: 10 knob grasps seat, every approach touches the object (best −3.0 mm)")),
-    "frog",
-])  # fmt: skip
+@pytest.mark.parametrize("name", ["red_box", "nerf_gun", "scissors", "sunglasses", "bear", "stapler", "led_light",
+                                  "wire_cutter", "usb_plug", "toy_drawer", "frog"])
 def test_every_studio_demo_plans_on_ground_truth(robot, tmp_path, name):
     """The studio catalogue's design rule, checked with the planner's default settings: the
     demonstrated motion of every object (its ground-truth part trajectory and table pose) has a

@@ -42,7 +42,7 @@ class MeshConfig(eqx.Module):
     jumps the volume by 2–40× in one step, while the fillets an alpha ball leaves in concave
     corners grow it by 5–15 % per step without end; looking two steps ahead, an open container
     (the studio toy_drawer's drawer: 61 → 68 → 71 → 77 → 88 cm³ from 5.7 mm on) never passed
-    and was swept until its cavity was filled (195 cm³ at 53 mm; the drawer is 69 cm³)."""
+    and was swept until its cavity was filled (195 cm³ at 53 mm; that drawer, with its earlier flush knob, was 69 cm³)."""
     max_alpha_retries: int = 4
     """Fixed alpha: how many times it may grow by `alpha_ratio` before the convex hull."""
     max_points: int = 1000
