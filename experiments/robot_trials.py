@@ -39,6 +39,8 @@ from rsrd_jax.pipeline import PipelineConfig, run_pipeline  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
 
 STAGES = ("init", "traj", "grasp", "exec")
+DEFAULT_BUILD_SIZES = dict(scan_views=48, scan_size=(320, 240), fit_iterations=1000, field_iterations=600, max_gaussians=12288)
+"""`--build-size default`: the scan and build sizes of `rsrd-jax build`'s defaults (`BuildConfig()`)."""
 
 
 def trial_studio(base: Path, out: Path, name: str, seed: int, yaw_deg: float) -> Path:
@@ -258,6 +260,10 @@ def main(argv=None) -> int:
                     help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
+    ap.add_argument("--build-size", choices=("pipeline", "default"), default="pipeline",
+                    help="scan and ObjectModel sizes: the pipeline's (16 views 160×120, 400 fit + 300 field iterations, "
+                         "6000 Gaussians, as `rsrd-jax demo`) or the library's defaults (48 views 320×240, 1000 + 600, "
+                         "12288 Gaussians, as `rsrd-jax build`)")  # fmt: skip
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
                     help="run nothing: assemble one table from earlier runs' JSONs (each object from the last file "
                          "that has it) and write it to --out")  # fmt: skip
@@ -269,8 +275,10 @@ def main(argv=None) -> int:
         res = merge([Path(p) for p in a.merge])
     else:
         objects = a.objects or list_objects()
+        sizes = {} if a.build_size == "pipeline" else DEFAULT_BUILD_SIZES
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
-                             plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight)  # fmt: skip
+                             plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight,
+                             **sizes)  # fmt: skip
         commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
         res["config"]["commit"] = commit

@@ -224,6 +224,55 @@ def test_seating_coarse_to_fine_equals_checking_every_keyframe(robot):
     assert len(set(depth[ok].tolist())) > 1  # several depths chosen
 
 
+def test_seating_checks_the_approach_opening_at_the_grasp(robot):
+    """A 60 × 12 × 4 mm plate 12 mm above the table (as on a stand), pinched across its width
+    from above, once with a level jaw and once with the jaw tilted 30° about the plate's length.
+    Opened 10 mm per finger beyond the grasp (the approach's narrowest opening,
+    ``approach_clearance``), the tilted jaw's lower pad drops 5 mm: without
+    ``seat_approach_opening`` that grasp seats at a depth where the approach must end with a pad
+    in the table; with it, it seats only where the open jaw clears too (checked with
+    ``hand_clearance`` directly), and the level grasp keeps its depth."""
+    from rsrd_jax.plan._proxy import hand_clearance, hand_geometry, part_sdf, robot_proxy
+    from rsrd_jax.plan._search import _pad_table_allowance, _seat_grasps, grasp_targets
+
+    rng = np.random.default_rng(0)
+    half = np.array([0.03, 0.006, 0.002])
+    p = rng.uniform(-half, half, (6000, 3))
+    face = rng.integers(0, 3, len(p))
+    p[np.arange(len(p)), face] = np.sign(rng.standard_normal(len(p))) * half[face]  # surface samples
+    lite = strip_robot(robot)
+    K = 3
+    T_obj_part = np.tile(np.array([1.0, 0, 0, 0, 0, 0, 0.012]), (K, 1, 1))
+    T_obj_part[:, 0, 4] = np.linspace(0.0, 0.03, K)  # slides 3 cm sideways
+    cfg = PlanConfig(collision_margin=0.002, approach_clearance=(None, 0.01))
+    proxy = robot_proxy(lite, cfg.sample_spacing)
+    sdf = part_sdf([p], cfg.sdf_spacing)
+    hand = hand_geometry(lite, proxy)
+    T_robot_part = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32))
+                               @ jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32))).wxyz_xyz)  # fmt: skip
+    down = jaxlie.SO3.from_x_radians(np.pi) @ jaxlie.SO3.from_z_radians(np.pi / 2)  # z down, jaw x along the width (y)
+    Tg = np.stack([np.asarray(jaxlie.SE3.from_rotation(jaxlie.SO3.from_y_radians(0.0) @ down).wxyz_xyz),
+                   np.asarray(jaxlie.SE3.from_rotation(jaxlie.SO3.from_x_radians(np.deg2rad(30.0)) @ down).wxyz_xyz)])
+    opening = np.full(2, 0.006, np.float32)
+    valid = np.ones(2, bool)
+    args = (lite, hand, sdf, Tg, opening, valid, T_ROBOT_OBJ, T_obj_part[:, 0], T_robot_part, 0, cfg)
+    ok0, d0 = _seat_grasps(*args)
+    ok1, d1 = _seat_grasps(*args, opening_approach=opening + 0.01)
+
+    def open_clearance(i, d):  # the gripper at the first keyframe, jaw at the approach opening
+        Td = np.asarray((jaxlie.SE3(jnp.asarray(Tg[i:i + 1], jnp.float32))
+                         @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -d]))).wxyz_xyz)  # fmt: skip
+        T_tcp = grasp_targets(T_ROBOT_OBJ, T_obj_part[:, 0], Td)[:, :1]
+        return float(hand_clearance(lite, hand, sdf, jnp.asarray(T_tcp, jnp.float32), jnp.asarray(opening[i:i + 1] + 0.01),
+                                    jnp.asarray(T_robot_part[:1], jnp.float32), jnp.asarray(0), True,
+                                    _pad_table_allowance(cfg))[0])  # fmt: skip
+
+    assert ok0.all() and ok1[0] and d1[0] == d0[0]  # the level jaw: opening it lowers no pad
+    assert open_clearance(0, d1[0]) >= cfg.collision_margin
+    assert open_clearance(1, d0[1]) < cfg.collision_margin  # seated without the check: the open pad hits
+    assert not ok1[1] or (d1[1] > d0[1] and open_clearance(1, d1[1]) >= cfg.collision_margin)
+
+
 def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
     traj = _trajectory()
     plan = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(8, 0)}, config=CFG)

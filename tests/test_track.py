@@ -14,7 +14,7 @@ import pytest
 from rsrd_jax.io import ArtefactError, load_trajectory, read_demo, read_demo_gt, save_trajectory
 from rsrd_jax.splat import rest_part_poses
 from rsrd_jax.studio import StudioConfig, make_object
-from rsrd_jax.track import InitConfig, StudioDepthOracle, StudioHandMasks, TrackConfig, add_metrics, kabsch, track_video
+from rsrd_jax.track import InitConfig, StudioDepthOracle, StudioHandMasks, TrackConfig, add_metrics, initialize_demo, kabsch, track_video
 from rsrd_jax.track import _dpm
 
 from ._gt_model import gt_object_model
@@ -41,6 +41,11 @@ def test_track_compiles_once_and_writes_a_valid_trajectory(studio, tmp_path):
     assert traj.T_obj_part.shape == (4, 2, 7) and traj.T_cam_obj.shape == (4, 7)
     assert np.all(np.isfinite(traj.T_cam_world_part)) and np.all(traj.visible >= 0)
     assert "studio relative-depth ORACLE" in traj.meta["mono_depth"]
+    # the initialisation alone (`initialize_demo`, for evaluating it) gives the pose tracking started from
+    T_init, info = initialize_demo(model, demo, TINY, TINY_INIT, StudioHandMasks(root / "demo"),
+                                   StudioDepthOracle(root / "demo"), extractor=ext)  # fmt: skip
+    np.testing.assert_allclose(np.asarray(T_init.wxyz_xyz), traj.T_cam_obj[0], atol=1e-5)
+    assert info["init_s"] > 0 and info["best_seed"] == traj.meta["init"]["best_seed"]
     # compilation is reported apart from the tracking rate (the first solve compiles)
     ts = traj.meta["timings_s"]
     assert ts["frame_compile_s"] > 0.5 * ts["frames_s"] > 0
@@ -301,6 +306,46 @@ def test_locate_object_finds_the_object_and_its_distance(studio, shift):
     R_true = np.asarray(T0.rotation().as_matrix())
     d = K.fx * np.sqrt(silhouette_areas(means, R_true[None])[0] / area)
     assert abs(d / np.linalg.norm(pc) - 1.0) < 0.3, (d, np.linalg.norm(pc))
+
+
+@pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 5): the near table at the frame's bottom outscores the drawer "
+                   "the hand half covers (experiments/results/init_table.md)")
+def test_locate_object_finds_the_toy_drawer_under_the_hand(tmp_path):
+    """On the studio toy_drawer's first frame at the pipeline's size (320×240 demo, 224 px ROI:
+    a 28-cell grid over the letterboxed frame) the hand covers the knob and half the drawer. The
+    decoded object features resemble the near table's coarser texture at the frame's bottom as
+    much as the drawer's (cosine 0.5–0.6 for both on a pipeline-size build), so those cells,
+    unlike the far table that makes up most of the background, win the contrast: the located
+    centre lies 100 px from the drawer and the initialisation misses the object
+    (`experiments/init_table.py`: 542 mm). Dropping a
+    second ring of cells at the frame's edge found the drawer here but moved four other objects'
+    initial poses into worse basins (wire_cutter 1.8° → 15.7°), so it was not adopted."""
+    import cv2
+    import jax
+
+    from rsrd_jax.geometry import crop
+    from rsrd_jax.track._dpm import TrackModel
+    from rsrd_jax.track._init import locate_object, region_centre_and_area
+    from rsrd_jax.track._observe import Observer, full_frame_box
+
+    root = tmp_path / "toy_drawer"
+    make_object("toy_drawer", root, StudioConfig(scan_views=6, scan_size=(96, 72), demo_frames=2, demo_size=(320, 240),
+                                                 parts=("scan", "demo")))  # fmt: skip
+    model, ext = gt_object_model(root, pca_dim=16, per_part=300, field_iters=30)
+    demo = read_demo(root / "demo" / "demo.mp4")
+    K = demo.intrinsics
+    T0 = jaxlie.SE3(jnp.asarray(read_demo_gt(root / "demo")["T_cam_world_part"][0, 0], jnp.float32))
+    pc = np.asarray(T0 @ jnp.asarray(np.asarray(model.gaussians.means).mean(0), jnp.float32))
+    uv_true = np.array([K.fx * pc[0] / pc[2] + K.cx, K.fy * pc[1] / pc[2] + K.cy])
+    box = full_frame_box(K.width, K.height)
+    obs = Observer(ext, model.pca, K, 224, StudioHandMasks(root / "demo")).observe(0, demo.frames[0], box)
+    g = obs.features.shape[0]
+    inside = crop(np.ones((K.height, K.width), np.float32), box, g, cv2.INTER_AREA) > 0.99
+    tm = TrackModel.from_object_model(model, 1500)
+    gf = np.asarray(jax.vmap(tm.decoder)(tm.gaussians.features[:, : tm.num_features]))
+    score, region = locate_object(np.asarray(obs.features), inside, inside & (np.asarray(obs.weight) <= 0), gf)
+    uv, _ = region_centre_and_area(score, region, box)
+    assert np.linalg.norm(uv - uv_true) < 0.08 * K.width, (uv, uv_true)
 
 
 @pytest.mark.slow

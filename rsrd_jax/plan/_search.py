@@ -49,7 +49,8 @@ ARM_NAMES = ("right", "left")
 STAGES = ("grasp_invalid", "grasp_collision", "unsolved", "solver", "pose_error", "joint_limits", "collision",
           "approach")
 """Rejection stages, in the order they are applied (``grasp_collision``: the free-floating
-gripper at the grasp poses along the trajectory hits the table or a part at every seating depth;
+gripper at the grasp poses along the trajectory, or at the first one with the fingers at the
+approach's narrowest opening, hits the table or a part at every seating depth;
 ``unsolved``: seated grasps beyond ``PlanConfig.max_candidates``, lowest scores)."""
 
 
@@ -155,6 +156,12 @@ class PlanConfig(eqx.Module):
     (m) at which the free-floating gripper clears the table and the parts at every keyframe. The
     pads reach 20 mm past the TCP, so the contact line stays on the pad; deep back-offs are
     fingertip grasps (flat parts on the table, parts next to other parts)."""
+    seat_approach_opening: bool = True
+    """Seating also requires the gripper to clear the table and the other parts at the first
+    keyframe with the fingers at the approach's narrowest opening (``approach_clearance``),
+    where the approach ends and the jaw is about to close: a grasp whose open pads hit something
+    there is never approachable, and without the check such grasps could fill the
+    ``approach_candidates`` that get an approach."""
     max_candidates: int = 480
     """Grasp candidates solved per part and arm: the seated ones (see ``grasp_depths``), best
     grasp score first (RSRD solves 480)."""
@@ -531,10 +538,12 @@ def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, 
 
 def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: np.ndarray, T_robot_obj: np.ndarray,
                  T_obj_part_k: np.ndarray, T_robot_part: np.ndarray, part: int, cfg: PlanConfig,
-                 coarse: int = 4) -> tuple[np.ndarray, np.ndarray]:
+                 coarse: int = 4, opening_approach: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Seating of part ``part``'s grasps ``Tg`` (n, 7): per grasp the smallest depth of
     ``cfg.grasp_depths`` at which the free gripper clears the table and the parts at every
     keyframe (``ok``), else the depth of its largest clearance; returns (ok (n,), depth (n,)).
+    With ``opening_approach`` (n,) the gripper must also clear them at the first keyframe with
+    the fingers at that opening: where the approach ends, before the jaw closes.
 
     Only valid grasps are checked, and only at depths shallower than the one they already seat
     at. Each depth is checked coarse to fine: first at ``coarse`` keyframes spread over the
@@ -544,6 +553,7 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
     n, K = Tg.shape[0], T_robot_part.shape[0]
     depths = np.asarray(cfg.grasp_depths, float)
     sub = np.unique(np.round(np.linspace(0, K - 1, min(coarse, K))).astype(int))
+    first = np.zeros_like(sub)  # the first keyframe, repeated to the coarse pass's shape (no new compile)
     seat = np.full(n, -1)
     best = np.full(n, -np.inf)
     best_j = np.zeros(n, int)
@@ -554,6 +564,9 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
         Td = np.asarray((_se3(Tg[todo]) @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, -d]))).wxyz_xyz)
         T_tcp = grasp_targets(T_robot_obj, T_obj_part_k, Td)  # (m, K, 7)
         c = _clearance_blocks(robot, hand, sdf, T_tcp[:, sub], opening[todo], T_robot_part[sub], part, cfg)
+        if opening_approach is not None:
+            c = np.minimum(c, _clearance_blocks(robot, hand, sdf, T_tcp[:, first], opening_approach[todo],
+                                                T_robot_part[first], part, cfg))  # fmt: skip
         fine = np.flatnonzero(c >= cfg.collision_margin)
         if len(fine) and len(sub) < K:
             c[fine] = _clearance_blocks(robot, hand, sdf, T_tcp[fine], opening[todo[fine]], T_robot_part, part, cfg)
@@ -775,8 +788,13 @@ def _plan_robot(
             g = get_grasps(k)
             Tg = np.asarray(g.T_part_grasp, float)
             opening = np.clip(np.asarray(g.width) / 2, 0.0, open_grip).astype(np.float32)
+            # the approach ends at the grasp with the fingers at its narrowest opening
+            narrow = min((c for c in clear if c is not None), default=None)
+            opening_app = (np.full_like(opening, open_grip) if narrow is None
+                           else np.clip(opening + narrow, 0.0, open_grip).astype(np.float32))  # fmt: skip
             ok, depth = _seat_grasps(robot_lite, hand, coll.sdf, Tg, opening, np.asarray(g.valid, bool), T_robot_obj,
-                                     T_obj_part[idx, k], T_robot_part, k, config)  # fmt: skip
+                                     T_obj_part[idx, k], T_robot_part, k, config,
+                                     opening_approach=opening_app if config.seat_approach_opening else None)  # fmt: skip
             offs = jnp.stack([jnp.zeros(len(depth)), jnp.zeros(len(depth)), -jnp.asarray(depth)], -1)
             Tg_s = (_se3(Tg) @ jaxlie.SE3.from_translation(offs)).wxyz_xyz
             seat_cache[k] = (eqx.tree_at(lambda x: x.T_part_grasp, g, jnp.asarray(Tg_s, g.T_part_grasp.dtype)), ok, depth)

@@ -56,4 +56,4 @@ from ._register import (
     register_object as register_object,
     registration_error as registration_error,
 )
-from ._track import track_video as track_video
+from ._track import initialize_demo as initialize_demo, track_video as track_video

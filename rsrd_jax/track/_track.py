@@ -51,6 +51,56 @@ def _roi_for(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, K, m
     return roi_box(uv, K.width, K.height, margin)
 
 
+def _lod_voxel(model, config: TrackConfig, grid_size: int) -> float | None:
+    """The level-of-detail voxel (m) for `config.lod_cells` feature cells of the ROI grid."""
+    if not config.lod_cells:
+        return None
+    mp = np.asarray(model.gaussians.means)
+    r = float(np.percentile(np.linalg.norm(mp - mp.mean(0), axis=1), 90))
+    return config.lod_cells * 2 * r * (1 + 2 * config.roi_margin) / grid_size
+
+
+def _initialize(tm: TrackModel, obsr: Observer, demo: Demo, init: InitConfig, roi_margin: float):
+    """The object's pose on the demo's first frame (`initialize_pose` on the full frame)."""
+    frame0, K = demo.frames[0], demo.intrinsics
+    rest = rest_part_poses(tm.part_centroids)
+    res, info = initialize_pose(tm, lambda box: obsr.observe(0, frame0, box), frame0, K, init,
+                                full_frame_box(K.width, K.height), lambda T: _roi_for(tm, rest, T, K, roi_margin))  # fmt: skip
+    return res.T_cam_obj, info
+
+
+def initialize_demo(
+    model,
+    demo: Demo,
+    config: TrackConfig = TrackConfig(),
+    init: InitConfig = InitConfig(),
+    occluder: OccluderSource | None = None,
+    mono: MonoDepthSource | None = None,
+    extractor=None,
+) -> tuple[jaxlie.SE3, dict]:
+    """The object's pose on the demo's first frame alone: what :func:`track_video` starts from
+    (same observations, model sizes and initialiser), for evaluating the initialisation.
+
+    Args:
+        model: an `ObjectModel`.
+        demo: the decoded demo video (only frame 0 is used).
+        config: tracking options (ROI size and margin, Gaussian budget, seed).
+        init: initialisation options.
+        occluder, mono: as in :func:`track_video`.
+        extractor: the feature extractor; default rebuilt from `model.feature_backend`.
+
+    Returns:
+        (`T_cam_obj` on frame 0, the initialiser's diagnostics with `init_s`, the wall time).
+    """
+    if demo.num_frames < 1:
+        raise ArtefactError(f"{demo.video_path}: the demo has no frames")
+    t0 = time.perf_counter()
+    obsr = Observer(model_extractor(model, extractor), model.pca, demo.intrinsics, config.roi_size, occluder, mono)
+    tm = TrackModel.from_object_model(model, config.max_gaussians, config.seed, _lod_voxel(model, config, obsr.grid_size))
+    T, info = _initialize(tm, obsr, demo, init, config.roi_margin)
+    return T, {**info, "init_s": time.perf_counter() - t0}
+
+
 def track_video(
     model,
     demo: Demo,
@@ -99,11 +149,7 @@ def track_video(
     K = demo.intrinsics
     t_start = time.perf_counter()
     obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono, fingertips)
-    voxel = None
-    if config.lod_cells:
-        mp = np.asarray(model.gaussians.means)
-        r = float(np.percentile(np.linalg.norm(mp - mp.mean(0), axis=1), 90))
-        voxel = config.lod_cells * 2 * r * (1 + 2 * config.roi_margin) / obsr.grid_size
+    voxel = _lod_voxel(model, config, obsr.grid_size)
     use_joints = config.joints and not separable
     neighbour: dict[int, int] = {}
     if use_joints:
@@ -119,13 +165,8 @@ def track_video(
 
     # ---- initialisation on frame 0
     t0 = time.perf_counter()
-    frame0 = demo.frames[0]
     if T_cam_obj_init is None:
-        init_res, init_info = initialize_pose(
-            tm, lambda box: obsr.observe(0, frame0, box), frame0, K, init, full_frame_box(K.width, K.height),
-            lambda T: _roi_for(tm, rest, T, K, config.roi_margin),
-        )  # fmt: skip
-        T_cam_obj = init_res.T_cam_obj
+        T_cam_obj, init_info = _initialize(tm, obsr, demo, init, config.roi_margin)
     else:
         T_cam_obj, init_info = jaxlie.SE3(jnp.asarray(T_cam_obj_init.wxyz_xyz, jnp.float32)), {"given": True}
     timings["init_s"] = time.perf_counter() - t0
