@@ -202,5 +202,10 @@ class InitConfig(eqx.Module):
     occluded_weight: float = 0.5
     """Factor on the contrast score of occluded (hand) cells when locating the object: a hand
     can cover all of a small object on the first frame (studio usb_plug)."""
+    locate_support: bool = True
+    """Use the relative depth (when a mono-depth source is given) to find the table plane and
+    damp the contrast score of cells on it (`locate_object`, `support_height`): without it the
+    near table at the bottom of the studio toy_drawer's and usb_plug's first frames won the
+    contrast or joined the object's region (`experiments/results/init_table.md`)."""
     depth_weight: float = 1.0
     """Weight of the metric depth term when metric depth is given (registration)."""
