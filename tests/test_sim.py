@@ -296,3 +296,30 @@ def test_approach_uses_the_plans_finger_opening(stapler, gt_plan, gt_result):
     base = gt_result.robot_q[gt_result.phase == 2, 14 + a]
     expect = min(max(float(gt_plan.q_approach[0, 14 + a]), 0.0), HOME_Q[14 + a])
     assert np.abs(base - expect).max() < 1.5e-3 and abs(expect - 0.02) > 3e-3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    "red_box", "nerf_gun", "scissors", "sunglasses",
+    pytest.param("bear", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm margin no "
+                                                 "approach to the arm clears the torso")),
+    "stapler", "led_light", "wire_cutter", "usb_plug", "toy_drawer", "frog",
+])  # fmt: skip
+def test_every_studio_demo_succeeds_in_simulation_from_ground_truth(tmp_path, name):
+    """The planner's plan from each studio demo's ground truth (true part trajectory, part
+    surfaces and table pose; the pipeline's 3 mm clearance from the object) executed in MuJoCo
+    passes Traj, Grasp and Exec: what the robot trials ask of the tracked and registered inputs,
+    with perfect inputs. Ground truth at 30 demo frames, 4 scan views (only the robot view and the
+    demo's poses are used)."""
+    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
+
+    root = tmp_path / name
+    make_object(name, root, StudioConfig(scan_views=4, scan_size=(64, 48), demo_frames=30, demo_size=(96, 72),
+                                         robot_size=(64, 36), robot_object_yaw_deg=0.0))  # fmt: skip
+    inp = studio_plan_inputs(root)
+    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands,
+                      config=PlanConfig(collision_margin=0.003))  # fmt: skip
+    assert plan.success, plan.message
+    save_plan(plan, tmp_path / "plan")
+    r = simulate_plan(load_plan(tmp_path / "plan"), root, progress=False)
+    assert r.success, r.reasons

@@ -232,11 +232,13 @@ def usb_plug() -> StudioObject:
 
 
 def toy_drawer() -> StudioObject:
-    # The knob is a 24 × 16 × 16 mm head on a 20 mm stem: the gripper's pads (25 mm wide, 8 mm
-    # thick, 20 mm past the TCP) pinch the head's sides from above clear of the front panel. The
-    # earlier flush 20 × 16 × 12 mm knob had no approach on ground truth that kept the pads off
-    # the panel (best −3.0 mm), and a level approach from the front puts the palm (51 mm radius)
-    # into the table at the knob's 34 mm height.
+    # The knob is a 24 × 16 × 16 mm head on a 30 mm stem: the gripper's pads (25 mm wide, 8 mm
+    # thick, 20 mm past the TCP) pinch the head's sides from above clear of the front panel, and
+    # the palm's rounded end (51 mm radius, 67 mm behind the TCP) stays above the cabinet's top
+    # edge with the pipeline's 3 mm margin (on a 20 mm stem it touched it: tracked trials planned
+    # only without a margin). The earlier flush 20 × 16 × 12 mm knob had no approach on ground
+    # truth that kept the pads off the panel (best −3.0 mm), and a level approach from the front
+    # puts the palm into the table at the knob's 34 mm height.
     return StudioObject(
         name="toy_drawer",
         description="toy drawer pulled open by its knob (prismatic)",
@@ -255,12 +257,12 @@ def toy_drawer() -> StudioObject:
             Part(
                 "drawer",
                 (_box(0.04, 0.045, 0.003, (0, 0, 0.003)), _box(0.042, 0.003, 0.022, (0, -0.048, 0.022)),
-                 _box(0.004, 0.01, 0.004, (0, -0.061, 0.025)), _box(0.012, 0.008, 0.008, (0, -0.079, 0.025))),
+                 _box(0.004, 0.015, 0.004, (0, -0.066, 0.025)), _box(0.012, 0.008, 0.008, (0, -0.089, 0.025))),
                 (0.2, 0.6, 0.3), parent=0, joint="slide", pos=(0, 0, 0.009), axis=(0, -1, 0), range=(0, 0.07),
             ),
         ),  # fmt: skip
         keyframes={1: ((0.0, 0.0), (0.15, 0.0), (0.85, 0.05), (1.0, 0.05))},
-        contacts=(Contact(1, (0, -0.079, 0.025), (1, 0, 0), (0, 0, -1), 0.024),),
+        contacts=(Contact(1, (0, -0.089, 0.025), (1, 0, 0), (0, 0, -1), 0.024),),
     )
 
 
