@@ -24,7 +24,9 @@ class SuccessConfig(eqx.Module):
     press on a surface is not a pinch."""
     final_position: float = 0.015
     """Exec: largest allowed distance (m) between every part's final origin (root frame) and the
-    demonstration's final one."""
+    demonstration's final one. Final: after release and retreat, except for a free part
+    (separable, e.g. usb_plug's plug), scored where the motion ends, still held (the demonstrator
+    still holds it on the video's last frame; released in the air it falls)."""
     final_rotation_deg: float = 15.0
     """Exec: largest allowed angle (degrees) between every part's final orientation (root frame)
     and the demonstration's final one."""
