@@ -299,6 +299,18 @@ def test_approach_uses_the_plans_finger_opening(stapler, gt_plan, gt_result):
     assert np.abs(base - expect).max() < 1.5e-3 and abs(expect - 0.02) > 3e-3
 
 
+def _planned_from_ground_truth(root):
+    """The planner's plan from a studio object's ground truth (true part surfaces, trajectory
+    and table pose) with the pipeline's 3 mm clearance; asserts that it was found."""
+    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
+
+    inp = studio_plan_inputs(root)
+    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands,
+                      config=PlanConfig(collision_margin=0.003))  # fmt: skip
+    assert plan.success, plan.message
+    return plan
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
     "red_box", "nerf_gun",
@@ -319,15 +331,10 @@ def test_every_studio_demo_succeeds_in_simulation_from_ground_truth(tmp_path, na
     passes Traj, Grasp and Exec: what the robot trials ask of the tracked and registered inputs,
     with perfect inputs. Ground truth at 30 demo frames, 4 scan views (only the robot view and the
     demo's poses are used)."""
-    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
-
     root = tmp_path / name
     make_object(name, root, StudioConfig(scan_views=4, scan_size=(64, 48), demo_frames=30, demo_size=(96, 72),
                                          robot_size=(64, 36), robot_object_yaw_deg=0.0))  # fmt: skip
-    inp = studio_plan_inputs(root)
-    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands,
-                      config=PlanConfig(collision_margin=0.003))  # fmt: skip
-    assert plan.success, plan.message
+    plan = _planned_from_ground_truth(root)
     save_plan(plan, tmp_path / "plan")
     r = simulate_plan(load_plan(tmp_path / "plan"), root, progress=False)
     assert r.success, r.reasons
@@ -339,14 +346,8 @@ def test_a_free_part_is_scored_where_the_motion_ends(tmp_path):
     last pose, on the table, is far from the demo's."""
     root = tmp_path / "usb_plug"
     make_object("usb_plug", root, dataclasses.replace(SMALL, robot_object_yaw_deg=0.0))
-    from rsrd_jax.plan import PlanConfig, plan_robot, studio_plan_inputs
-
-    inp = studio_plan_inputs(root)
-    plan = plan_robot(load_yumi(), inp.part_points, inp.T_obj_part, inp.T_robot_obj, hands=inp.hands,
-                      config=PlanConfig(collision_margin=0.003))  # fmt: skip
-    assert plan.success, plan.message
     obj = load_sim_object(root)
-    r = simulate_plan(plan, obj, progress=False)
+    r = simulate_plan(_planned_from_ground_truth(root), obj, progress=False)
     assert r.stages["grasp"], r.reasons
     ex = r.metrics["exec"]
     assert ex["final_error_mm"][1] == ex["end_of_motion_error_mm"][1]
@@ -356,4 +357,5 @@ def test_a_free_part_is_scored_where_the_motion_ends(tmp_path):
     demo_end = obj.T_obj_part_demo[-1, 1, 4:]
     T_root = r.part_poses[-1, 0]
     last_rel = np.asarray(jaxlie.SE3(jnp.asarray(T_root)).inverse() @ jnp.asarray(r.part_poses[-1, 1, 4:]))
-    assert np.linalg.norm(last_rel - demo_end) > 0.03 + 1e-3 * ex["final_error_mm"][1]
+    last_error_mm = 1e3 * np.linalg.norm(last_rel - demo_end)
+    assert last_error_mm > ex["final_error_mm"][1] + 30.0  # scoring the last pose would differ

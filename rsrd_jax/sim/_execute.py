@@ -561,9 +561,8 @@ def simulate_plan(
     fin_rel, end_rel = root_rel(T_fin), root_rel(T_end_motion)
     # a free part (separable: usb_plug's plug) is still in the demonstrator's hand on the video's
     # last frame, in the air; released, it falls. It is scored where the motion ends, still held.
-    from ..studio import get_object  # noqa: PLC0415 (the studio imports the simulator's scene)
-
-    free = [k for k, part_spec in enumerate(get_object(obj.name).parts) if part_spec.joint == "free"]
+    free = [k for k in range(1, P) if m.body_jntnum[scene.part_bodies[k]] == 1
+            and m.jnt_type[m.body_jntadr[scene.part_bodies[k]]] == mujoco.mjtJoint.mjJNT_FREE]  # fmt: skip
     final_err = [_pose_err((end_rel if k in free else fin_rel)[k], T_demo[-1, k]) for k in range(P)]
     def _moves(k: int) -> bool:
         errs = [_pose_err(T_demo[0, k], T_demo[t, k]) for t in range(len(T_demo))]
