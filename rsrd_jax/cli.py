@@ -186,7 +186,7 @@ def cmd_track(a: argparse.Namespace) -> int:
                           hand=a.w_hand, motion=a.w_motion)  # fmt: skip
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
-                      slides=not a.no_slides, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
+                      slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
     traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable, fingertips=fingertips)
     save_trajectory(traj, out)
@@ -446,6 +446,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="joint discovery: a first pass on the contact band, then parts tied at fitted joint points (2× time)")
     tr.add_argument("--no-slides", action="store_true",
                     help="with --joints: no slide hypotheses (a part on a slide candidate is tracked only with its joint point)")
+    tr.add_argument("--slides-unheld", action="store_true",
+                    help="with --joints and --hands: slide hypotheses also for parts no hand held (default: held parts only)")
     tr.add_argument("--hinge-axes", action="store_true",
                     help="with --joints: each jointed part turns about a fitted hinge axis (no roll about its own length)")
     tr.add_argument("--velocity-hypothesis", type=float, default=None,

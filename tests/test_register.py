@@ -14,12 +14,13 @@ import pytest
 from rsrd_jax.io import ArtefactError, write_depth_png
 from rsrd_jax.plan._studio import read_robot_object_pose
 from rsrd_jax.studio import StudioConfig, make_object
-from rsrd_jax.track import InitConfig
+from rsrd_jax.track import InitConfig, _register
 from rsrd_jax.track._register import RegistrationError, read_robot_view, register_object, registration_error
 
 from ._gt_model import gt_object_model
 
 FAST = InitConfig(yaw_seeds=8, iters=40, refine_iters=0, lr_start=2e-2, lr_end=2e-3)
+FAST_REFINED = InitConfig(yaw_seeds=8, iters=40, refine_iters=10, lr_start=2e-2, lr_end=2e-3)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +40,9 @@ def studio(tmp_path_factory):
 def test_registration_recovers_the_true_pose(studio):
     root, model, ext = studio
     view = read_robot_view(root)
-    reg = register_object(model, view, FAST, roi_size=160, max_gaussians=2000, extractor=ext)
+    before = _register._trace_counts["optimise"]
+    reg = register_object(model, view, FAST_REFINED, roi_size=160, max_gaussians=2000, extractor=ext)
+    assert _register._trace_counts["optimise"] - before == 1, "one compiled optimiser for every stage"
     gt = read_robot_object_pose(root)
     err = registration_error(reg.T_robot_obj, gt, np.asarray(model.gaussians.means))
     # the seeds stand the model upright at the blob's centre; the optimiser must find the yaw and
@@ -47,6 +50,7 @@ def test_registration_recovers_the_true_pose(studio):
     assert err["add_mm"] < 10.0 and err["rotation_deg"] < 5.0, (err, reg.info)
     assert reg.residual_mm < 6.0 and reg.status_name == "ok"
     assert reg.info["best_seed"] in range(8) and len(reg.info["seed_losses"]) == 8
+    assert len(reg.info["refined"]["losses"]) == FAST_REFINED.keep_seeds
 
 
 def test_registration_bad_inputs(studio, tmp_path):

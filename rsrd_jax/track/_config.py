@@ -102,6 +102,12 @@ class TrackConfig(eqx.Module):
     rotation off that axis relative to its neighbour (the revolute term, `revolute_loss`, at the
     ARAP weight). A ball joint leaves a thin part's roll about its own length to the features,
     which barely see it."""
+    hinge_up_tolerance: float = 0.05
+    """With `hinge_axes` and a known support plane: its normal is the hinge axis when its residual
+    (`hinge_axis`) is within this fraction of the best candidate's. Measured on the studio frog
+    (90 frames, the robot trials' build): the front leg's tilted minor principal axis (19° off
+    the true vertical hinge) beat the table normal by 8.54 against 8.55 mm, and the tracked leg
+    turned 28° of 40° with a 9° roll."""
     slides: bool = True
     """With `joints`: slide hypotheses. A part that moved relative to its neighbour in the first
     pass by more than `slide_min_m` and either did not turn or got a joint point far from the
@@ -109,6 +115,13 @@ class TrackConfig(eqx.Module):
     slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
     principal axes; the hypothesis (joint point or one of the slides) with the lowest data loss
     summed over the frames wins. Costs up to three more second passes per candidate part."""
+    slide_held_only: bool = True
+    """With `slides` and a fingertip source: only parts a hand held in the first pass (its hand
+    anchors) are slide candidates (when no hand was anchored, every part stays one). Measured on
+    the studio bear (120 frames, the robot trials' build): the first pass left the unmoved left
+    arm and right leg 5+ mm off their neighbour, both became candidates and both "won" by < 0.4 %
+    of the data loss (static parts tied by slide joints), in 1204 s of extra passes; the waved
+    arm, the only one held, was no candidate."""
     slide_point_ratio: float = 0.5
     """A fitted joint point farther than this × the part's radius from the contact makes the
     part a slide candidate."""
@@ -188,7 +201,9 @@ class InitConfig(eqx.Module):
     keep_seeds: int = 4
     """Seeds that continue after the screening iterations."""
     refine_iters: int = 60
-    """Iterations refining the best seed on an ROI crop."""
+    """Iterations refining the best seeds on an ROI crop around the best: the `keep_seeds` lowest
+    (one batch of the single compiled seed optimiser), each from its own pose; the lowest refined
+    loss wins."""
     lr_start: float = 1e-2
     """Initial learning rate."""
     lr_end: float = 4e-3

@@ -11,12 +11,15 @@ import jaxlie
 import numpy as np
 import optax
 from scipy import ndimage
+from jax.typing import ArrayLike
 from jaxtyping import Array, Float
 
 from ..splat import RenderConfig, choose_config, rest_part_poses, apply_part_poses
-from ..geometry import Camera
+from ..geometry import Camera, box_intrinsics
 from ._dpm import FrameObs, TrackModel, lr_schedule, render_posed
 from ._losses import feature_loss
+
+_trace_counts = {"seeds": 0}
 
 
 def seed_rotations(yaw_seeds: int, altitudes_deg) -> Float[Array, "s 3 3"]:
@@ -210,9 +213,9 @@ def _pose_objective(tm, T_cam_obj, obs: FrameObs, config, metric_depth, depth_we
     return loss
 
 
-def adam_about_centroid(loss_at, T_seed: jaxlie.SE3, c, lrs, units=None) -> jaxlie.SE3:
+def adam_about_centroid(loss_at, T_seed: jaxlie.SE3, c, lrs, units=None, steps=None) -> jaxlie.SE3:
     """Adam (optax) on a tangent update δ about the centroid `c` of `T_seed` (`centred`), one
-    step per learning rate in `lrs` (a `lax.scan`); traced inside the caller's jit and vmap.
+    step per learning rate in `lrs`; traced inside the caller's jit and vmap.
 
     Args:
         loss_at: `T_cam_obj -> scalar` objective.
@@ -220,6 +223,9 @@ def adam_about_centroid(loss_at, T_seed: jaxlie.SE3, c, lrs, units=None) -> jaxl
         c: (3,) object centroid (object frame).
         lrs: (n,) learning rates.
         units: optional (6,) scale of δ's components (e.g. translation in object sizes).
+        steps: optional traced step count: only the first `steps` learning rates are used (a
+            `fori_loop`), so one compiled function serves schedules of any length ≤ n; None: all
+            of them (a `lax.scan`).
 
     Returns:
         The optimised pose.
@@ -235,15 +241,53 @@ def adam_about_centroid(loss_at, T_seed: jaxlie.SE3, c, lrs, units=None) -> jaxl
         return (d - lr * upd, st), None
 
     d0 = jnp.zeros(6)
-    (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
+    if steps is None:
+        (d, _), _ = jax.lax.scan(step, (d0, opt.init(d0)), lrs)
+    else:
+        d, _ = jax.lax.fori_loop(0, steps, lambda i, carry: step(carry, lrs[i])[0], (d0, opt.init(d0)))
     return centred(T_seed, d * u6, c)
 
 
+def padded_schedule(lrs: Float[Array, " n"], length: int) -> tuple[Float[Array, " m"], Array]:
+    """`lrs` padded (with its last value) to `length`, and its true length as a traced int: the
+    arguments of a step-count-agnostic optimiser (`adam_about_centroid(..., steps=)`)."""
+    n = int(lrs.shape[0])
+    return jnp.pad(lrs, (0, max(length - n, 0)), mode="edge"), jnp.int32(n)
+
+
+def in_lanes(run, T_seeds: ArrayLike, lanes: int) -> list[np.ndarray]:
+    """Calls `run(jaxlie.SE3 of `lanes` seeds)` over `T_seeds` (S, 7) in batches of exactly
+    `lanes` (the last padded with copies of its last seed), so that every stage of a multi-seed
+    search calls one compiled function with one shape; returns each output concatenated over the
+    S seeds."""
+    T_seeds = np.asarray(T_seeds)
+    outs: list[list[np.ndarray]] = []
+    for s in range(0, len(T_seeds), lanes):
+        chunk = T_seeds[s : s + lanes]
+        m = len(chunk)
+        if m < lanes:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], lanes - m, 0)])
+        res = run(jaxlie.SE3(jnp.asarray(chunk, jnp.float32)))
+        outs.append([np.asarray(r)[:m] for r in res])
+    return [np.concatenate(x) for x in zip(*outs)]
+
+
+def widest(a: RenderConfig, b: RenderConfig) -> RenderConfig:
+    """The render budgets that cover both `a` and `b` (same tiles and chunks): one static
+    config, so a search rendering several views compiles once."""
+    if (a.tile_size, a.chunk_size, a.stats) != (b.tile_size, b.chunk_size, b.stats):
+        raise ValueError(f"render configs differ in tiling: {a} vs {b}")
+    return RenderConfig(tile_size=a.tile_size, chunk_size=a.chunk_size, capacity=max(a.capacity, b.capacity),
+                        max_chunks=max(a.max_chunks, b.max_chunks), max_pairs=max(a.max_pairs, b.max_pairs), stats=a.stats)  # fmt: skip
+
+
 @eqx.filter_jit
-def _optimise_seeds(tm, T_seeds: jaxlie.SE3, c, obs, lrs, config, metric_depth, depth_weight):
+def _optimise_seeds(tm, T_seeds: jaxlie.SE3, c, obs, lrs, steps, config, md, depth_weight):
+    """Vmapped Adam over seeds: the first `steps` (traced) of the learning rates `lrs`."""
+    _trace_counts["seeds"] += 1
     def one(T_seed):
-        loss_at = lambda T: _pose_objective(tm, T, obs, config, metric_depth, depth_weight)  # noqa: E731
-        T = adam_about_centroid(loss_at, T_seed, c, lrs)
+        loss_at = lambda T: _pose_objective(tm, T, obs, config, md, depth_weight)  # noqa: E731
+        T = adam_about_centroid(loss_at, T_seed, c, lrs, steps=steps)
         return T.wxyz_xyz, loss_at(T)
 
     return jax.vmap(one)(T_seeds)
@@ -318,10 +362,9 @@ def initialize_pose(
         t = ray[None] * np.reshape(d, (-1, 1)) - np.einsum("sij,j->si", R, c)
         return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t, jnp.float32))
 
-    def render_config(T_list, intr):
+    def render_config(views):
         posed = apply_part_poses(tm.gaussians, rest_part_poses(tm.part_centroids), tm.part_centroids)
-        cams = [Camera(intr, jaxlie.SE3(T)) for T in T_list]
-        return choose_config(posed, cams, headroom=1.5)
+        return choose_config(posed, [Camera(intr, jaxlie.SE3(T)) for T, intr in views], headroom=1.5)
 
     def seed_crop(d: float):
         # a crop around the located region (the object fills it, unlike the whole frame), sized
@@ -334,32 +377,54 @@ def initialize_pose(
     T_seeds = seeds_at(seed_dist if cfg.distance_m is None and metric_depth_full is None else dist)
     obs_s, md = seed_crop(dist)
     some = sorted(set(range(0, len(R), max(1, len(R) // 4))) | {int(np.argmin(seed_dist))})  # incl. the nearest
-    cfg_full = render_config([T_seeds.wxyz_xyz[i] for i in some], obs_s.intrinsics)
+    # sized for the seed crop and for the ROI crop the refinement will use (`roi_box_fn` frames the
+    # object alike at any pose), so that one render config serves every stage
+    views = [(T_seeds.wxyz_xyz[i], obs_s.intrinsics) for i in some]
+    views += [(T_seeds.wxyz_xyz[i], box_intrinsics(K, roi_box_fn(jaxlie.SE3(T_seeds.wxyz_xyz[i])), g)) for i in some]
+    cfg_render = render_config(views)
     lrs = lr_schedule(cfg.lr_start, cfg.lr_end, cfg.iters)
     c32 = jnp.asarray(c, jnp.float32)
     n_screen = cfg.screen_iters if 0 < cfg.screen_iters < cfg.iters else cfg.iters
-    Ts, losses = _optimise_seeds(tm, T_seeds, c32, obs_s, lrs[:n_screen], cfg_full, md, cfg.depth_weight)
+    halving = n_screen < cfg.iters and cfg.keep_seeds < len(R)
+    # every stage (screening, the survivors' continuation, the ROI refinement) runs the same
+    # compiled function: `lanes` seeds at a time, schedules padded to one length, one render config
+    lanes = max(1, min(cfg.keep_seeds, len(R)))
+    L = max(n_screen, cfg.iters - n_screen, cfg.refine_iters)
+
+    def optimise(T, obs, schedule, md_):
+        lr, steps = padded_schedule(schedule, L)
+        return in_lanes(lambda Tb: _optimise_seeds(tm, Tb, c32, obs, lr, steps, cfg_render, md_, cfg.depth_weight), T, lanes)
+
+    Ts, losses = optimise(T_seeds.wxyz_xyz, obs_s, lrs[:n_screen], md)
     survivors = np.arange(len(R))
     final_losses = losses
-    if n_screen < cfg.iters and cfg.keep_seeds < len(R):
-        # successive halving: the best `keep_seeds` continue (fresh Adam moments, same schedule)
-        survivors = np.argsort(np.asarray(losses))[: max(cfg.keep_seeds, 1)]
-        Ts, final_losses = _optimise_seeds(tm, jaxlie.SE3(Ts[survivors]), c32, obs_s, lrs[n_screen:], cfg_full, md, cfg.depth_weight)
+    if halving:  # successive halving: the best `keep_seeds` continue (fresh Adam moments, same schedule)
+        survivors = np.argsort(losses)[: max(cfg.keep_seeds, 1)]
+        Ts, final_losses = optimise(Ts[survivors], obs_s, lrs[n_screen:], md)
     elif n_screen < cfg.iters:
-        Ts, final_losses = _optimise_seeds(tm, jaxlie.SE3(Ts), c32, obs_s, lrs[n_screen:], cfg_full, md, cfg.depth_weight)
-    k = int(jnp.argmin(final_losses))
-    best = int(survivors[k])
-    T_best = jaxlie.SE3(Ts[k])
-    # refine the best seed on an ROI around it
+        Ts, final_losses = optimise(Ts, obs_s, lrs[n_screen:], md)
+    order = np.argsort(final_losses)
+    best = int(survivors[order[0]])
+    T_best = jaxlie.SE3(jnp.asarray(Ts[order[0]]))
+    # refine on an ROI around the best pose: the best and the next survivors (a batch's other
+    # lanes), each from its own pose on the same crop; the lowest refined loss wins
     box = roi_box_fn(T_best)
     obs_roi = observe(box)
     md_roi = jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0)) if metric_depth_full is not None else None
-    cfg_roi = render_config([T_best.wxyz_xyz], obs_roi.intrinsics)
+    cfg_roi = render_config([(T_best.wxyz_xyz, obs_roi.intrinsics)])
+    recompiled = cfg_roi.capacity > cfg_render.capacity or cfg_roi.max_chunks > cfg_render.max_chunks or cfg_roi.max_pairs > cfg_render.max_pairs
+    cfg_render = widest(cfg_render, cfg_roi)
     lrs2 = lr_schedule(cfg.lr_end, cfg.lr_end * 0.5, cfg.refine_iters)
-    Ts2, losses2 = _optimise_seeds(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), c32, obs_roi, lrs2, cfg_roi, md_roi, cfg.depth_weight)
-    res = InitResult(jaxlie.SE3(Ts2[0]), losses, best, dist, int(region.sum()))
+    top = order[: min(lanes, len(order))]
+    Ts2, losses2 = optimise(Ts[top], obs_roi, lrs2, md_roi)
+    k2 = int(np.argmin(losses2))
+    if k2 != 0:
+        best = int(survivors[top[k2]])
+    res = InitResult(jaxlie.SE3(jnp.asarray(Ts2[k2])), jnp.asarray(losses), best, dist, int(region.sum()))
     info = {"seed_losses": np.asarray(losses).tolist(), "screen_iters": int(n_screen),
             "survivors": [int(i) for i in survivors], "survivor_losses": np.asarray(final_losses).tolist(),
             "best_seed": best, "distance_prior_m": dist, "seed_distances_m": np.round(seed_dist, 4).tolist(),
-            "region_cells": int(region.sum()), "refined_loss": float(losses2[0]), "object_pixel": [float(u), float(v)]}  # fmt: skip
+            "region_cells": int(region.sum()), "refined_loss": float(losses2[k2]), "refined_losses": np.asarray(losses2).tolist(),
+            "refined_from_best": k2 == 0, "lanes": int(lanes), "render_config_widened_for_roi": bool(recompiled),
+            "object_pixel": [float(u), float(v)]}  # fmt: skip
     return res, info

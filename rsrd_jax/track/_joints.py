@@ -166,13 +166,17 @@ def slide_axes(points: np.ndarray) -> np.ndarray:
 
 
 def hinge_axis(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int, point: np.ndarray,
-               points: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               points: np.ndarray, candidates: np.ndarray, prefer_last: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The hinge axis of part k relative to `nb` among `candidates` (C×3 directions, object frame
     at rest): the one about which turns through `point` explain the pass's motion of k's
     `points` (N×3, object frame at rest) best. For each axis and frame the best angle is the 2D
     Procrustes solution in the plane normal to the axis; the score is the RMS point residual.
     A thin part's roll about its own length barely moves its points, so the tracked rotation's
     own axis (which includes that roll) is not a candidate: the residual is measured on points.
+    `prefer_last`: the last candidate (the support plane's normal) wins when its residual is within
+    this fraction of the lowest: a round part's (a capsule limb's) two minor principal axes are
+    arbitrary directions in its cross-section, and one of them can tie with the table normal on a
+    noisy pass.
 
     Returns:
         (the chosen unit axis, C RMS residuals in metres).
@@ -195,6 +199,9 @@ def hinge_axis(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int, p
         rot = p[None] * c + np.cross(a, p)[None] * s_ + np.outer(p @ a, a)[None] * (1 - c)
         rms.append(float(np.sqrt(np.mean(np.sum((rot - q) ** 2, -1)))))
     rms = np.asarray(rms)
-    best = np.asarray(candidates, np.float64)[int(np.argmin(rms))]
+    i = int(np.argmin(rms))
+    if prefer_last > 0 and rms[-1] <= (1.0 + prefer_last) * rms[i]:
+        i = len(rms) - 1
+    best = np.asarray(candidates, np.float64)[i]
     return best / np.linalg.norm(best), rms
 

@@ -25,10 +25,12 @@ from ..io import ArtefactError, read_camera_json, read_depth_png, read_image_rgb
 from ._config import InitConfig
 from ._dpm import TrackModel
 from ._dpm import lr_schedule, render_posed
-from ._init import adam_about_centroid
+from ._init import adam_about_centroid, in_lanes, padded_schedule, widest
 from ._losses import feature_loss
 from ._observe import model_extractor, Observer, crop, roi_box
 from ..splat import apply_part_poses, choose_config, rest_part_poses
+
+_trace_counts = {"optimise": 0}
 
 
 class RobotView(eqx.Module):
@@ -169,15 +171,17 @@ def _reg_objective(tm, T_cam_obj, obs, rcfg, md, blob, T_robot_cam, table_z, w: 
 
 
 @eqx.filter_jit
-def _optimise(tm, T_seeds: jaxlie.SE3, c, scale, obs, lrs, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
-    """Vmapped Adam over seeds on tangent updates about the object centroid `c`; the translation
-    part is in units of the object's diameter (2 · `scale`), so a step of lr moves the object by
-    that fraction of its size, whatever its size (rotation: lr radians)."""
+def _optimise(tm, T_seeds: jaxlie.SE3, c, scale, obs, lrs, steps, rcfg, md, blob, T_robot_cam, table_z, w: RegWeights):
+    """Vmapped Adam over seeds on tangent updates about the object centroid `c` (the first
+    `steps`, traced, of the learning rates `lrs`); the translation part is in units of the
+    object's diameter (2 · `scale`), so a step of lr moves the object by that fraction of its
+    size, whatever its size (rotation: lr radians)."""
+    _trace_counts["optimise"] += 1
     units = jnp.concatenate([jnp.full(3, 2.0 * scale), jnp.ones(3)])
 
     def one(T_seed):
         loss_at = lambda T: _reg_objective(tm, T, obs, rcfg, md, blob, T_robot_cam, table_z, w)  # noqa: E731
-        T = adam_about_centroid(loss_at, T_seed, c, lrs, units)
+        T = adam_about_centroid(loss_at, T_seed, c, lrs, units, steps=steps)
         feat = _reg_objective(tm, T, obs, rcfg, md, blob, T_robot_cam, table_z, RegWeights(1.0, 0.0, 0.0, 0.0, w.depth_clip))
         return T.wxyz_xyz, loss_at(T), feat
 
@@ -334,27 +338,50 @@ def register_object(
     g = obs.features.shape[0]
     md = jnp.asarray(crop(view.depth, box, g, cv2.INTER_NEAREST))
     lap("observe")
-    cams = [Camera(obs.intrinsics, jaxlie.SE3(T_seeds.wxyz_xyz[i])) for i in range(0, len(yaws), max(1, len(yaws) // 4))]
+    # render budgets for the seed crop and for the ROI crop of the refinement (framed alike at any
+    # pose), so that one render config serves both stages
+    cams = []
+    for i in range(0, len(yaws), max(1, len(yaws) // 4)):
+        Ti = jaxlie.SE3(T_seeds.wxyz_xyz[i])
+        uvi, zi = project_points(K, Ti @ posed.means)
+        boxi = roi_box(np.asarray(uvi)[np.asarray(zi) > 0], K.width, K.height, 0.2)
+        cams += [Camera(obs.intrinsics, Ti), Camera(obsr.grid_intrinsics(boxi), Ti)]
     rcfg = choose_config(posed, cams, headroom=1.5)
     cj = jnp.asarray(c, jnp.float32)
     lap("choose_config")
     blob_g = jnp.asarray(crop(blob.astype(np.float32), box, g, cv2.INTER_AREA))
     tz = jnp.float32(table_z)
-    Ts, losses, feats = _optimise(tm, T_seeds, cj, jnp.float32(radius), obs, lr_schedule(init.lr_start, init.lr_end, init.iters), rcfg, md, blob_g, T_robot_cam, tz, weights)
-    best = int(jnp.argmin(losses))
-    T_best = jaxlie.SE3(Ts[best])
+    # the seeds and the ROI refinement run one compiled function: `lanes` seeds per call, the
+    # schedules padded to one length, one render config (`_init.in_lanes`)
+    lanes = max(1, min(init.keep_seeds, len(yaws)))
+    L = max(init.iters, init.refine_iters)
+
+    def optimise(T, obs_, schedule, md_, blob_, rcfg_):
+        lr, steps = padded_schedule(schedule, L)
+        return in_lanes(lambda Tb: _optimise(tm, Tb, cj, jnp.float32(radius), obs_, lr, steps, rcfg_, md_, blob_,
+                                             T_robot_cam, tz, weights), T, lanes)  # fmt: skip
+
+    Ts, losses, feats = optimise(T_seeds.wxyz_xyz, obs, lr_schedule(init.lr_start, init.lr_end, init.iters), md, blob_g, rcfg)
+    order = np.argsort(losses)
+    best = int(order[0])
+    T_best = jaxlie.SE3(jnp.asarray(Ts[best]))
     T_cam_obj, final_loss = T_best, float(losses[best])
+    refined = None
     lap("optimise_seeds")
-    if init.refine_iters > 0:  # optional: refine on an ROI around the best pose (a second compile)
+    if init.refine_iters > 0:  # refine the best seeds (one batch) on an ROI around the best pose
         uvb, zb = project_points(K, T_best @ posed.means)
         box2 = roi_box(np.asarray(uvb)[np.asarray(zb) > 0], K.width, K.height, 0.2)
         obs2 = obsr.observe(0, view.rgb, box2)
         md2 = jnp.asarray(crop(view.depth, box2, g, cv2.INTER_NEAREST))
-        rcfg2 = choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5)
+        rcfg2 = widest(rcfg, choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5))
         lrs2 = lr_schedule(init.lr_end, init.lr_end * 0.5, init.refine_iters)
         blob2 = jnp.asarray(crop(blob.astype(np.float32), box2, g, cv2.INTER_AREA))
-        Ts2, losses2, _ = _optimise(tm, jaxlie.SE3(T_best.wxyz_xyz[None]), cj, jnp.float32(radius), obs2, lrs2, rcfg2, md2, blob2, T_robot_cam, tz, weights)
-        T_cam_obj, final_loss = jaxlie.SE3(Ts2[0]), float(losses2[0])
+        top = order[:lanes]
+        Ts2, losses2, _ = optimise(Ts[top], obs2, lrs2, md2, blob2, rcfg2)
+        k2 = int(np.argmin(losses2))
+        best = int(top[k2])
+        T_cam_obj, final_loss = jaxlie.SE3(jnp.asarray(Ts2[k2])), float(losses2[k2])
+        refined = {"seeds": [int(i) for i in top], "losses": np.asarray(losses2).tolist()}
     # metric refinement: ICP of the blob's points (camera frame) onto the model's Gaussian centres
     icp_info = {}
     if icp_iters > 0:
@@ -371,7 +398,7 @@ def register_object(
     lap("self_check")
     info = {
         "seed_losses": np.asarray(losses).tolist(), "seed_feature_losses": np.asarray(feats).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
-        "final_loss": final_loss, "blob_pixels": int(blob.sum()),
+        "final_loss": final_loss, "refined": refined, "blob_pixels": int(blob.sum()),
         "icp": icp_info, "time_s": time.perf_counter() - t0, "timings_s": timings,
     }  # fmt: skip
     status = RegistrationStatus.ok if resid <= max_residual_mm else RegistrationStatus.poor_fit

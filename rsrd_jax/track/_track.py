@@ -369,10 +369,16 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         pw[mine & ~is_slot] = 0.0
         if config.hinge_axes:
             cand = slide_axes(part) if up is None else np.concatenate([slide_axes(part), [up / np.linalg.norm(up)]])
-            a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand)
+            a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand, prefer_last=0.0 if up is None else config.hinge_up_tolerance)
             hinges.append((k, nb, a, radius))
             info[str(k)].update(hinge_axis=[float(v) for v in a], hinge_candidates=np.round(cand, 4).tolist(),
                                 hinge_rms_mm=np.round(1e3 * rms, 2).tolist())  # fmt: skip
+    held = sorted({int(k) for k in first.anchors.part[first.anchors.anchored]})
+    if config.slide_held_only and held:
+        # a hand moves what it holds: a part nobody held that seemed to slide in the first pass
+        # (its few-mm drift, a static limb) gets no slide hypothesis
+        info["slide_candidates_not_held"] = [int(c[0]) for c in candidates if c[0] not in held]
+        candidates = [c for c in candidates if c[0] in held]
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
     piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
