@@ -274,9 +274,12 @@ def in_lanes(run, T_seeds: ArrayLike, lanes: int) -> list[np.ndarray]:
 
 def widest(a: RenderConfig, b: RenderConfig) -> RenderConfig:
     """The render budgets that cover both `a` and `b` (same tiles and chunks): one static
-    config, so a search rendering several views compiles once."""
+    config, so a search rendering several views compiles once. `a` itself when it covers `b`
+    (so `widest(a, b) is a` tells that no new compilation is needed)."""
     if (a.tile_size, a.chunk_size, a.stats) != (b.tile_size, b.chunk_size, b.stats):
         raise ValueError(f"render configs differ in tiling: {a} vs {b}")
+    if a.capacity >= b.capacity and a.max_chunks >= b.max_chunks and a.max_pairs >= b.max_pairs:
+        return a
     return RenderConfig(tile_size=a.tile_size, chunk_size=a.chunk_size, capacity=max(a.capacity, b.capacity),
                         max_chunks=max(a.max_chunks, b.max_chunks), max_pairs=max(a.max_pairs, b.max_pairs), stats=a.stats)  # fmt: skip
 
@@ -412,8 +415,8 @@ def initialize_pose(
     obs_roi = observe(box)
     md_roi = jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0)) if metric_depth_full is not None else None
     cfg_roi = render_config([(T_best.wxyz_xyz, obs_roi.intrinsics)])
-    recompiled = cfg_roi.capacity > cfg_render.capacity or cfg_roi.max_chunks > cfg_render.max_chunks or cfg_roi.max_pairs > cfg_render.max_pairs
-    cfg_render = widest(cfg_render, cfg_roi)
+    cfg_seeds, cfg_render = cfg_render, widest(cfg_render, cfg_roi)
+    recompiled = cfg_render is not cfg_seeds
     lrs2 = lr_schedule(cfg.lr_end, cfg.lr_end * 0.5, cfg.refine_iters)
     top = order[: min(lanes, len(order))]
     Ts2, losses2 = optimise(Ts[top], obs_roi, lrs2, md_roi)

@@ -338,14 +338,16 @@ def register_object(
     g = obs.features.shape[0]
     md = jnp.asarray(crop(view.depth, box, g, cv2.INTER_NEAREST))
     lap("observe")
+    def roi_of(T: jaxlie.SE3):  # the refinement's crop: the posed model's projection, grown by 20 %
+        uv, z = project_points(K, T @ posed.means)
+        return roi_box(np.asarray(uv)[np.asarray(z) > 0], K.width, K.height, 0.2)
+
     # render budgets for the seed crop and for the ROI crop of the refinement (framed alike at any
     # pose), so that one render config serves both stages
     cams = []
     for i in range(0, len(yaws), max(1, len(yaws) // 4)):
         Ti = jaxlie.SE3(T_seeds.wxyz_xyz[i])
-        uvi, zi = project_points(K, Ti @ posed.means)
-        boxi = roi_box(np.asarray(uvi)[np.asarray(zi) > 0], K.width, K.height, 0.2)
-        cams += [Camera(obs.intrinsics, Ti), Camera(obsr.grid_intrinsics(boxi), Ti)]
+        cams += [Camera(obs.intrinsics, Ti), Camera(obsr.grid_intrinsics(roi_of(Ti)), Ti)]
     rcfg = choose_config(posed, cams, headroom=1.5)
     cj = jnp.asarray(c, jnp.float32)
     lap("choose_config")
@@ -369,8 +371,7 @@ def register_object(
     refined = None
     lap("optimise_seeds")
     if init.refine_iters > 0:  # refine the best seeds (one batch) on an ROI around the best pose
-        uvb, zb = project_points(K, T_best @ posed.means)
-        box2 = roi_box(np.asarray(uvb)[np.asarray(zb) > 0], K.width, K.height, 0.2)
+        box2 = roi_of(T_best)
         obs2 = obsr.observe(0, view.rgb, box2)
         md2 = jnp.asarray(crop(view.depth, box2, g, cv2.INTER_NEAREST))
         rcfg2 = widest(rcfg, choose_config(posed, Camera(obs2.intrinsics, T_best), headroom=1.5))
