@@ -264,7 +264,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     import numpy as np
 
     from .grasp import GraspConfig
-    from .io import save_plan
+    from .io import ArtefactError, save_plan
     from .plan import PlanConfig, plan_robot, studio_plan_inputs
     from .robot import load_yumi
 
@@ -275,7 +275,11 @@ def cmd_plan(a: argparse.Namespace) -> int:
     hands = hand_parts = None
     mesh_points = None
     if a.studio_gt:
-        inp = studio_plan_inputs(a.studio_gt)
+        try:
+            inp = studio_plan_inputs(a.studio_gt)
+        except ArtefactError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         part_points, T_obj_part, hands = inp.part_points, inp.T_obj_part, inp.hands
         T_robot_obj = inp.T_robot_obj if a.object_pose is None else _parse_object_pose(a.object_pose)
     else:

@@ -91,3 +91,15 @@ def test_plan_approach_clearance_rejects_bad_values(tmp_path, capsys):
         assert e.value.code == 2
         assert repr(bad) in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
+
+
+def test_plan_studio_gt_names_the_missing_ground_truth(tmp_path, capsys):
+    """``plan --studio-gt DIR`` on a studio directory without its robot view (made with
+    ``--only scan demo``, or not a studio directory at all) is an error naming the missing file,
+    exit code 2, no traceback and no output written."""
+    (tmp_path / "st" / "scan" / "gt").mkdir(parents=True)
+    (tmp_path / "st" / "scan" / "gt" / "scan_gt.npz").write_bytes(b"")
+    assert main(["plan", "--studio-gt", str(tmp_path / "st"), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert "robot_view/gt.json" in err and "demo/gt/part_poses.npz" in err and "scan_gt.npz" not in err
+    assert not (tmp_path / "p").exists()

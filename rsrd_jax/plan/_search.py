@@ -176,6 +176,12 @@ class PlanConfig(eqx.Module):
     falls back to 10 mm; with only 10 mm the stapler's tracked-and-registered arm (2–5 mm off,
     sagging on its hinge) met a pad during the demo's approach (16.5 mm disturbance, Grasp
     failed), fully open it does not."""
+    approach_pads_clear_part: bool = True
+    """The open finger pads must clear the grasped part too (by ``collision_margin``) along the
+    approach and at its end (the seating check at the approach opening); they touch it only once
+    the jaw closes. Off, the pads may brush it on the way in (the check before session 28): on
+    the demo's stapler a tilted approach ran a pad over the arm's top edge 2 mm before the grasp
+    pose and knocked it 10.5 mm (Grasp failed)."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 32
@@ -521,7 +527,7 @@ SEAT_BLOCK = 512
 
 
 def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, T_parts: np.ndarray, part: int,
-                      cfg: PlanConfig) -> np.ndarray:
+                      cfg: PlanConfig, pads_touch: bool = True) -> np.ndarray:
     """:func:`hand_clearance` (+ ``hand_tolerance``) of n gripper trajectories (n, k, 7) in padded
     blocks of ``SEAT_BLOCK``."""
     n = T_tcp.shape[0]
@@ -531,7 +537,7 @@ def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, 
         sl = np.minimum(np.arange(s, s + SEAT_BLOCK), n - 1)  # pad with the last row
         c = hand_clearance(robot, hand, sdf, jnp.asarray(T_tcp[sl], jnp.float32), jnp.asarray(opening[sl]),
                            jnp.asarray(T_parts, jnp.float32), jnp.asarray(part), cfg.check_palm_on_grasped_part,
-                           _pad_table_allowance(cfg))  # fmt: skip
+                           _pad_table_allowance(cfg), pads_touch)  # fmt: skip
         out[s : s + m] = np.asarray(c)[:m]
     return out + cfg.hand_tolerance
 
@@ -566,7 +572,7 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
         c = _clearance_blocks(robot, hand, sdf, T_tcp[:, sub], opening[todo], T_robot_part[sub], part, cfg)
         if opening_approach is not None:
             c = np.minimum(c, _clearance_blocks(robot, hand, sdf, T_tcp[:, first], opening_approach[todo],
-                                                T_robot_part[first], part, cfg))  # fmt: skip
+                                                T_robot_part[first], part, cfg, not cfg.approach_pads_clear_part))  # fmt: skip
         fine = np.flatnonzero(c >= cfg.collision_margin)
         if len(fine) and len(sub) < K:
             c[fine] = _clearance_blocks(robot, hand, sdf, T_tcp[fine], opening[todo[fine]], T_robot_part, part, cfg)
@@ -1020,7 +1026,8 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
             path = jaxlie.SE3(T0.wxyz_xyz[None]) @ jaxlie.SE3.from_translation(offs)
             target[m, :, a] = np.asarray(path.wxyz_xyz)
     T_part0 = np.repeat(T_robot_part[:1], A, 0)
-    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], sorted(grasped), pads_only=cfg.check_palm_on_grasped_part)
+    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], sorted(grasped), pads_only=cfg.check_palm_on_grasped_part,
+                          pads_touch=not cfg.approach_pads_clear_part)
     # No rest pull here; instead a joint reference to the trajectory's first keyframe (weak along
     # the segment, strong at its end) keeps the segment in that keyframe's null-space branch.
     params_a = eqx.tree_at(lambda p: p.weights.rest, params, jnp.zeros_like(params.weights.rest))

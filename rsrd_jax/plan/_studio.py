@@ -85,7 +85,14 @@ def studio_plan_inputs(studio_dir: str | Path, points_per_part: int | None = 200
         points_per_part: subsample each part's surface points to at most this many (None: all).
         seed: subsampling seed.
     """
+    from ..io import ArtefactError
+
     d = Path(studio_dir)
+    need = (d / "scan" / "gt" / "scan_gt.npz", d / "demo" / "gt" / "part_poses.npz", d / "robot_view" / "gt.json")
+    missing = [str(p) for p in need if not p.is_file()]
+    if missing:
+        raise ArtefactError(f"{d}: not a complete studio object directory (scan, demo and robot_view ground truth); "
+                            f"missing {', '.join(missing)} (make it with `rsrd-jax studio make NAME --out DIR`)")  # fmt: skip
     with np.load(d / "scan" / "gt" / "scan_gt.npz") as z:
         T_wr = _mat(z["T_world_part"])  # (P, 4, 4) rest, scan world
         pts, ids = np.asarray(z["part_points"], float), np.asarray(z["part_point_ids"])
