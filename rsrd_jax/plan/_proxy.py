@@ -245,17 +245,16 @@ def proxy_distances(
     return d_table, d_cap - proxy.radius[:, None]
 
 
-def hand_part_mask(proxy: RobotProxy, num_parts: int, grasped: dict[int, int] | list, pads_only: bool = True,
-                   pads_touch: bool = True) -> Bool[np.ndarray, "caps parts"]:
+def hand_part_mask(proxy: RobotProxy, num_parts: int, grasped: dict[int, int] | list, pads_only: bool = True
+                   ) -> Bool[np.ndarray, "caps parts"]:
     """(caps, P) True where a robot-part distance counts. For each (arm, part) in ``grasped``
-    the arm's finger pads (unless not ``pads_touch``: open pads on the approach must clear it) and
-    its palm too (when not ``pads_only``) may touch that part."""
+    the arm's finger pads (and its palm too when not ``pads_only``) may touch that part."""
     kind = np.asarray(proxy.kind)
     arm = np.asarray(proxy.arm)
     mask = np.ones((kind.shape[0], num_parts), bool)
     items = grasped.items() if isinstance(grasped, dict) else grasped
     for a, k in items:
-        sel = (arm == a) & (((kind == 2) & pads_touch) | ((kind == 1) & (not pads_only)))
+        sel = (arm == a) & ((kind == 2) if pads_only else (kind >= 1))
         mask[sel, k] = False
     return mask
 
@@ -309,18 +308,17 @@ def hand_geometry(robot: YumiModel, proxy: RobotProxy) -> HandGeometry:
 def hand_clearance(
     robot: YumiModel, hand: HandGeometry, sdf: PartSDF, T_world_tcp: Float[Array, "n k 7"],
     opening: Float[Array, " n"], T_world_part: Float[Array, "k parts 7"], part: Int[Array, ""],
-    check_palm: bool = True, pad_table_allowance: Float[Array, ""] | float = 0.0, pads_touch: bool = True,
+    check_palm: bool = True, pad_table_allowance: Float[Array, ""] | float = 0.0,
 ) -> Float[Array, " n"]:
     """Smallest signed distance (m) of a free-floating gripper at TCP poses ``T_world_tcp``
     (n grasps × k keyframes) with finger ``opening`` (m) to the table and the parts: the pads
-    may touch ``part`` (the grasped one; not when ``pads_touch`` is off, for open pads that must
-    clear it), the palm too unless ``check_palm``; the pads' table distances are increased by
-    ``pad_table_allowance`` (m)."""
+    may touch ``part`` (the grasped one), the palm too unless ``check_palm``; the pads' table
+    distances are increased by ``pad_table_allowance`` (m)."""
     geom = robot.geom
     Tt = jaxlie.SE3(geom.table_wxyz_xyz)
     P = sdf.values.shape[0]
     c = hand.radius.shape[0]
-    allow = (jnp.arange(P)[None, :] == part) & (((hand.kind == 2) & pads_touch) | (not check_palm))[:, None]  # (caps, P)
+    allow = (jnp.arange(P)[None, :] == part) & ((hand.kind == 2) | (not check_palm))[:, None]  # (caps, P)
 
     def one(T7, o, Tp):
         T = jaxlie.SE3(T7)

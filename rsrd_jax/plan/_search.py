@@ -178,10 +178,11 @@ class PlanConfig(eqx.Module):
     failed), fully open it does not."""
     approach_pads_clear_part: bool = True
     """The open finger pads must clear the grasped part too (by ``collision_margin``) along the
-    approach and at its end (the seating check at the approach opening); they touch it only once
-    the jaw closes. Off, the pads may brush it on the way in (the check before session 28): on
-    the demo's stapler a tilted approach ran a pad over the arm's top edge 2 mm before the grasp
-    pose and knocked it 10.5 mm (Grasp failed)."""
+    approach, at every waypoint but its last (the grasp pose, where they surround the part and
+    the proxies' few-millimetre conservatism would reject good grasps: led_light's and red_box's
+    ground-truth plans). Off, the pads may brush their part on the way in (before session 28):
+    on the demo's stapler a tilted approach slid a pad along the arm's edge (−0.5 to −1 mm on the
+    proxies from 12 mm out) and knocked it 10.5 mm in simulation (Grasp failed)."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 32
@@ -527,7 +528,7 @@ SEAT_BLOCK = 512
 
 
 def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, T_parts: np.ndarray, part: int,
-                      cfg: PlanConfig, pads_touch: bool = True) -> np.ndarray:
+                      cfg: PlanConfig) -> np.ndarray:
     """:func:`hand_clearance` (+ ``hand_tolerance``) of n gripper trajectories (n, k, 7) in padded
     blocks of ``SEAT_BLOCK``."""
     n = T_tcp.shape[0]
@@ -537,7 +538,7 @@ def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, 
         sl = np.minimum(np.arange(s, s + SEAT_BLOCK), n - 1)  # pad with the last row
         c = hand_clearance(robot, hand, sdf, jnp.asarray(T_tcp[sl], jnp.float32), jnp.asarray(opening[sl]),
                            jnp.asarray(T_parts, jnp.float32), jnp.asarray(part), cfg.check_palm_on_grasped_part,
-                           _pad_table_allowance(cfg), pads_touch)  # fmt: skip
+                           _pad_table_allowance(cfg))  # fmt: skip
         out[s : s + m] = np.asarray(c)[:m]
     return out + cfg.hand_tolerance
 
@@ -572,7 +573,7 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
         c = _clearance_blocks(robot, hand, sdf, T_tcp[:, sub], opening[todo], T_robot_part[sub], part, cfg)
         if opening_approach is not None:
             c = np.minimum(c, _clearance_blocks(robot, hand, sdf, T_tcp[:, first], opening_approach[todo],
-                                                T_robot_part[first], part, cfg, not cfg.approach_pads_clear_part))  # fmt: skip
+                                                T_robot_part[first], part, cfg))  # fmt: skip
         fine = np.flatnonzero(c >= cfg.collision_margin)
         if len(fine) and len(sub) < K:
             c[fine] = _clearance_blocks(robot, hand, sdf, T_tcp[fine], opening[todo[fine]], T_robot_part, part, cfg)
@@ -1002,6 +1003,32 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
                  mins=b.mins[m], tier=int(t)) for m, t in zip(ids, pair_tier)]
 
 
+def _pads_to_grasped(robot_lite, coll, Qs: list, T_parts: np.ndarray, grasped: set, grip: np.ndarray,
+                     cfg: PlanConfig) -> np.ndarray:
+    """(n, G) smallest distance (m) of each arm's finger pads to the parts it grasps in any
+    candidate, along each solved approach ``Qs[j]`` (n, A, 16) without its last waypoint, with the
+    fingers at opening ``grip[:, j]``; evaluated in the solver's padded chunks (no new compile)."""
+    kind, arm = np.asarray(coll.proxy.kind), np.asarray(coll.proxy.arm)
+    own = np.zeros((kind.shape[0], T_parts.shape[1]), bool)
+    for a, k in grasped:
+        own[(arm == a) & (kind == 2), k] = True
+    n, A = Qs[0].shape[:2]
+    chunk = max(1, cfg.chunk_size)
+    out = np.full((n, len(Qs)), np.inf)
+    zeros_t, zeros_a = jnp.zeros((chunk, A, 2, 7), jnp.float32), jnp.zeros((chunk, A, 2), jnp.float32)
+    for j, Q in enumerate(Qs):
+        Q = np.asarray(Q, np.float32).copy()
+        Q[:, -1] = Q[:, -2]  # the last waypoint is left out
+        for s in range(0, n, chunk):
+            sl = np.minimum(np.arange(s, s + chunk), n - 1)
+            m = min(chunk, n - s)
+            ev = _evaluate(robot_lite, coll, jnp.asarray(Q[sl]), zeros_t, zeros_a, jnp.asarray(T_parts, jnp.float32),
+                           jnp.asarray(own), jnp.asarray(0.0, jnp.float32), jnp.asarray(grip[sl, j], jnp.float32),
+                           jnp.asarray(_pad_table_allowance(cfg), jnp.float32))  # fmt: skip
+            out[s : s + m, j] = np.asarray(ev[3])[:m, 2]
+    return out
+
+
 def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info):
     """Approach segments for the best candidates (batched; ``approach_candidates`` per tier, so a
     spread grasp still gets its approach when every best-scored one fails); the first that passes
@@ -1026,8 +1053,7 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
             path = jaxlie.SE3(T0.wxyz_xyz[None]) @ jaxlie.SE3.from_translation(offs)
             target[m, :, a] = np.asarray(path.wxyz_xyz)
     T_part0 = np.repeat(T_robot_part[:1], A, 0)
-    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], sorted(grasped), pads_only=cfg.check_palm_on_grasped_part,
-                          pads_touch=not cfg.approach_pads_clear_part)
+    mask = hand_part_mask(coll.proxy, T_robot_part.shape[1], sorted(grasped), pads_only=cfg.check_palm_on_grasped_part)
     # No rest pull here; instead a joint reference to the trajectory's first keyframe (weak along
     # the segment, strong at its end) keeps the segment in that keyframe's null-space branch.
     params_a = eqx.tree_at(lambda p: p.weights.rest, params, jnp.zeros_like(params.weights.rest))
@@ -1051,11 +1077,22 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     bs = _run_candidates(params_a, robot_lite, coll, x0, target, active, T_part0, mask, cfg, acceleration, grip,
                          q_ref, ref_w, q_last=q_first)  # fmt: skip
     alive_all = np.stack([_reject(bj, np.ones(n, bool), cfg, grasp=False)[0] for bj in bs], 1)  # (n, G)
+    own = None
+    if cfg.approach_pads_clear_part:
+        # the open pads keep the margin from the grasped part on the way in (every waypoint but the
+        # last, where they surround it and the proxies' few-mm conservatism decides nothing)
+        own = _pads_to_grasped(robot_lite, coll, [bj.q for bj in bs], T_part0, grasped, grip, cfg)  # (n, G)
+        alive_all &= own >= cfg.collision_margin
     # per candidate: its first passing opening (or, if none passes, the last, for the counts)
     pick = np.where(alive_all.any(1), np.argmax(alive_all, 1), G - 1)
     b = jax.tree.map(lambda *fs: np.stack(fs, 1)[np.arange(n), pick], *bs)
     grip = grip[np.arange(n), pick]
     alive, counts = _reject(b, np.ones(n, bool), cfg, grasp=False)
+    if own is not None:
+        own_m = own[np.arange(n), pick]
+        counts["pads_on_part"] = int(np.sum(alive & (own_m < cfg.collision_margin)))
+        alive &= own_m >= cfg.collision_margin
+        att["approach_pads_to_part_best"] = round(float(own_m.max()), 4) if n else None
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
     end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)
