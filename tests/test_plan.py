@@ -280,8 +280,6 @@ def test_open_pads_must_clear_the_grasped_part_on_the_way_in(robot):
     rejected (``pads_on_part``); without it the same grasp plans. MuJoCo's own box–box distance
     between the posed pads and the cube confirms the overlap at the approach's second-to-last
     waypoint; the unrolled grasp of a 3 cm cube (9 mm gaps) passes the check."""
-    import mujoco
-
     traj = _trajectory()
     down = jaxlie.SO3.from_x_radians(np.pi) @ jaxlie.SO3.from_z_radians(np.pi / 4)
     g = _grasps(1, 0)
@@ -293,25 +291,8 @@ def test_open_pads_must_clear_the_grasped_part_on_the_way_in(robot):
     loose = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g},
                        config=dataclasses.replace(CFG, approach_pads_clear_part=False))  # fmt: skip
     assert loose.success, loose.message
-    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
-    pads = [m.geom(n).id for n in ("pad_r_finger_r", "pad_r_finger_l")]
-    size = " ".join(map(str, m.geom_size[pads[0]]))
-    pair = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody>
-        <body mocap="true"><geom name="pad" type="box" size="{size}"/></body>
-        <body mocap="true"><geom name="cube" type="box" size="0.02 0.02 0.02"/></body>
-        </worldbody></mujoco>""")
-    pd = mujoco.MjData(pair)
-    T_cube = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(traj[0, 0]))
-    pd.mocap_pos[1], pd.mocap_quat[1] = np.asarray(T_cube.translation()), np.asarray(T_cube.rotation().wxyz)
-    d.qpos[:] = robot.qpos(loose.q_approach[-2])
-    mujoco.mj_forward(m, d)
-    dist = []
-    for p in pads:
-        pd.mocap_pos[0] = d.geom_xpos[p]
-        mujoco.mju_mat2Quat(pd.mocap_quat[0], d.geom_xmat[p])
-        mujoco.mj_forward(pair, pd)
-        dist.append(mujoco.mj_geomDistance(pair, pd, 0, 1, 0.05, None))
-    assert min(dist) < 0.0
+    T_cube = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(traj[0, 0]))).wxyz_xyz)
+    assert _right_pads_to_box(robot, (0.02, 0.02, 0.02), T_cube)(loose.q_approach[-2]) < 0.0
     ok = plan_robot(robot, [_cube(0.015)], traj, T_ROBOT_OBJ, grasps={0: _grasps(1, 0, 0.03)}, config=CFG)
     assert ok.success and ok.info["attempts"][0]["approach_pads_to_part_best"] >= CFG.collision_margin
 
@@ -651,6 +632,39 @@ def _flat_bar(T=6):
     return pts, traj, grasps
 
 
+def _right_pads_to_box(robot, half, T_robot_box):
+    """MuJoCo's own box–box distance (m) between the right gripper's pads (posed by the robot
+    model at ``q``, fingers at ``grip`` if given) and a box of half-sizes ``half`` at pose
+    ``T_robot_box`` (7,), in a two-geom model: returns ``clearance(q, grip=None)``."""
+    import mujoco
+
+    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
+    pads = [m.geom(n).id for n in ("pad_r_finger_r", "pad_r_finger_l")]
+    size = " ".join(map(str, m.geom_size[pads[0]]))
+    pair = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody>
+        <body mocap="true"><geom name="pad" type="box" size="{size}"/></body>
+        <body mocap="true"><geom name="box" type="box" size="{' '.join(map(str, half))}"/></body>
+        </worldbody></mujoco>""")
+    pd = mujoco.MjData(pair)
+    pd.mocap_pos[1], pd.mocap_quat[1] = np.asarray(T_robot_box[4:]), np.asarray(T_robot_box[:4])
+
+    def clearance(q, grip=None):
+        q = np.array(q, float)
+        if grip is not None:
+            q[14] = grip
+        d.qpos[:] = robot.qpos(q)
+        mujoco.mj_forward(m, d)
+        out = np.inf
+        for p in pads:
+            pd.mocap_pos[0] = d.geom_xpos[p]
+            mujoco.mju_mat2Quat(pd.mocap_quat[0], d.geom_xmat[p])
+            mujoco.mj_forward(pair, pd)
+            out = min(out, mujoco.mj_geomDistance(pair, pd, 0, 1, 0.05, None))
+        return out
+
+    return clearance
+
+
 def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
     """The pads end 20 mm past the TCP, so a grasp centred 3 mm above the table can only be seated
     with the pad tips closer to the table than a 3 mm margin: rejected when the pads keep the
@@ -687,8 +701,6 @@ def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
     the fully open pads (25 mm from the centre) would land on it, and so would pads opened 8 mm
     beyond the grasp, so the approach takes the last opening of ``approach_clearance`` (2 mm). MuJoCo's own pad–neighbour distance along the
     approach: below the margin with the jaw fully open, above it with the chosen opening."""
-    import mujoco
-
     pts, traj, grasps = _flat_bar()
     T = traj.shape[0]
     beside = np.asarray(jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.028, 0.003])).wxyz_xyz)
@@ -698,33 +710,9 @@ def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
     assert plan.success, (plan.message, plan.info)
     assert plan.info["attempts"][0]["approach_clearance"] == 0.002
     np.testing.assert_allclose(plan.q_approach[:, 14], 0.006 + 0.002, atol=1e-6)
-    # MuJoCo's box–box distance between each right pad (posed by the robot model) and the
-    # neighbour (a box in a two-geom model)
-    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
-    pads = [m.geom(n).id for n in ("pad_r_finger_r", "pad_r_finger_l")]
-    T_robot_beside = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(beside))
-    size = " ".join(map(str, m.geom_size[pads[0]]))
-    pair = mujoco.MjModel.from_xml_string(f"""<mujoco><worldbody>
-        <body mocap="true"><geom name="pad" type="box" size="{size}"/></body>
-        <body mocap="true"><geom name="bar" type="box" size="0.03 0.006 0.003"/></body>
-        </worldbody></mujoco>""")
-    pd = mujoco.MjData(pair)
-    pd.mocap_pos[1] = np.asarray(T_robot_beside.translation())
-    pd.mocap_quat[1] = np.asarray(T_robot_beside.rotation().wxyz)
-
-    def clearance(q, grip):
-        q = np.array(q, float)
-        q[14] = grip
-        d.qpos[:] = robot.qpos(q)
-        mujoco.mj_forward(m, d)
-        out = np.inf
-        for p in pads:
-            pd.mocap_pos[0] = d.geom_xpos[p]
-            mujoco.mju_mat2Quat(pd.mocap_quat[0], d.geom_xmat[p])
-            mujoco.mj_forward(pair, pd)
-            out = min(out, mujoco.mj_geomDistance(pair, pd, 0, 1, 0.05, None))
-        return out
-
+    # MuJoCo's box–box distance between each right pad (posed by the robot model) and the neighbour
+    T_robot_beside = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(beside))).wxyz_xyz)
+    clearance = _right_pads_to_box(robot, (0.03, 0.006, 0.003), T_robot_beside)
     for grip in (robot.upper[14], 0.006 + 0.008):
         assert min(clearance(q, grip) for q in plan.q_approach[-2:]) < cfg.collision_margin
     assert min(clearance(q, plan.q_approach[0, 14]) for q in plan.q_approach) >= cfg.collision_margin
