@@ -636,7 +636,8 @@ def plan_robot(
     survivors of each arm are combined into 16-DoF solves initialised from them and checked again
     (including arm-arm collisions). The best survivors by cost then get an approach segment
     (pre-grasp ``approach_distance`` behind the first grasp pose along the gripper z axis, to the
-    grasp) that must track and be collision-free. The first part (pair) with a feasible plan wins;
+    grasp) that must track and be collision-free, the open pads clear of the grasped part too
+    until the grasp pose (``approach_pads_clear_part``). The first part (pair) with a feasible plan wins;
     within it, the lowest cost.
 
     Args:
