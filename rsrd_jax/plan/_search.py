@@ -1009,10 +1009,7 @@ def _pads_to_grasped(robot_lite, coll, Qs: list, T_parts: np.ndarray, grasped: s
     """(n, G) smallest distance (m) of each arm's finger pads to the parts it grasps in any
     candidate, along each solved approach ``Qs[j]`` (n, A, 16) without its last waypoint, with the
     fingers at opening ``grip[:, j]``; evaluated in the solver's padded chunks (no new compile)."""
-    kind, arm = np.asarray(coll.proxy.kind), np.asarray(coll.proxy.arm)
-    own = np.zeros((kind.shape[0], T_parts.shape[1]), bool)
-    for a, k in grasped:
-        own[(arm == a) & (kind == 2), k] = True
+    own = ~hand_part_mask(coll.proxy, T_parts.shape[1], sorted(grasped), pads_only=True)  # exactly those pad rows
     n, A = Qs[0].shape[:2]
     chunk = max(1, cfg.chunk_size)
     out = np.full((n, len(Qs)), np.inf)
