@@ -226,6 +226,29 @@ def test_slide_candidates_and_axes():
     axes = slide_axes(box @ R.T + [0.1, 0.2, 0.3])
     np.testing.assert_allclose(np.abs(axes @ R), np.eye(3)[[0, 2, 1]], atol=0.05)
 
+
+def test_slide_directions_add_the_level_way_out_of_the_neighbour():
+    """Besides the principal axes, a slide is tried along the direction from the neighbour's
+    centroid to the part's, with its component along the support normal removed (a drawer
+    pulled out level), unless that direction is within 15° of a principal axis."""
+    from rsrd_jax.track._joints import slide_axes, slide_directions
+
+    rng = np.random.default_rng(2)
+    R = np.asarray(jaxlie.SO3.from_z_radians(np.pi / 4).as_matrix())  # long side along (1, 1, 0)/√2
+    plate = rng.uniform(-1, 1, (2000, 3)) * [0.05, 0.01, 0.003] @ R.T
+    up = np.array([0.0, 0.0, 2.0])  # not unit: normalised inside
+    dirs = slide_directions(plate, np.array([0.0, -0.07, -0.015]), up)
+    assert dirs.shape == (4, 3)
+    np.testing.assert_allclose(dirs[:3], slide_axes(plate))
+    np.testing.assert_allclose(dirs[3], [0.0, -1.0, 0.0], atol=1e-9)
+    # without a support normal the offset is used as it is
+    np.testing.assert_allclose(slide_directions(plate, np.array([0.0, -0.07, -0.015]))[3], np.array([0.0, -0.07, -0.015]) / np.hypot(0.07, 0.015))
+    # 10° from the long axis: nothing new
+    a = np.radians(45.0 + 10.0)
+    assert slide_directions(plate, np.array([np.cos(a), np.sin(a), 0.0]), up).shape == (3, 3)
+    # no offset at all
+    assert slide_directions(plate, np.zeros(3), up).shape == (3, 3)
+
 def test_contact_band_pairs_match_brute_force_and_joint_slots_are_invisible(rng):
     import equinox as eqx
 

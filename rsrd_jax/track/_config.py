@@ -114,7 +114,8 @@ class TrackConfig(eqx.Module):
     contact (`slide_point_ratio`) is tracked again in the second pass tied to its neighbour by a
     slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
     principal axes; the hypothesis (joint point or one of the slides) with the lowest data loss
-    summed over the frames wins. Costs up to three more second passes per candidate part."""
+    summed over the frames wins (by `slide_min_gain`). Costs up to four more second passes per
+    candidate part."""
     slide_held_only: bool = True
     """With `slides` and a fingertip source: only parts a hand held in the first pass (its hand
     anchors) are slide candidates (when no hand was anchored, every part stays one). Measured on
@@ -122,13 +123,26 @@ class TrackConfig(eqx.Module):
     arm and right leg 5+ mm off their neighbour, both became candidates and both "won" by < 0.4 %
     of the data loss (static parts tied by slide joints), in 1204 s of extra passes; the waved
     arm, the only one held, was no candidate."""
-    slide_point_ratio: float = 0.5
+    slide_point_ratio: float = 0.0
     """A fitted joint point farther than this × the part's radius from the contact makes the
-    part a slide candidate."""
+    part a slide candidate; 0 (since session 29): every part with a fitted joint point is one
+    (with `slide_held_only`: every held one). The first pass's point is no reliable test: on
+    the session-7 builds nerf_gun's slide scored 0.57, hinges 0.02–0.59 against 0.5, and on the
+    robot trials' builds nerf_gun's slide (0.5 before session 29: ADD 5.03 / 19.96 mm, with 0:
+    4.80 / 3.63) and toy_drawer's drawer fell below 0.5. The price: up to four more second
+    passes per held hinged part (red_box +407 s at 120 frames; its hinge kept, every slide
+    ≥ 3.9 % worse in data loss)."""
+    slide_min_gain: float = 0.005
+    """A slide hypothesis replaces the one chosen so far only when its data loss summed over the
+    frames is lower by more than this fraction. Measured (robot trials' builds, every held part
+    with a fitted joint a candidate): nerf_gun's true slide won by 0.98 % (ADD 5.03 / 19.96 →
+    4.80 / 3.63 mm); toy_drawer's drawer, whose principal axes are its plate's diagonals, got a
+    vertical slide by 0.18 % (ADD 4.69 / 23.31 → 10.05 / 24.06 mm)."""
     slide_velocity: float | None = 1.0
-    """`velocity_hypothesis` of the second pass (all its hypotheses) when there are slide
-    candidates (None: `velocity_hypothesis`). Measured on nerf_gun with the true slide axis:
-    slide ADD 11.9 mm with one start, 3.3 mm with 1.0."""
+    """`velocity_hypothesis` of the slide hypotheses' second passes (None: `velocity_hypothesis`);
+    the joint-point hypothesis keeps `velocity_hypothesis` (before session 29 it took this one too
+    whenever there were candidates). Measured on nerf_gun with the true slide axis: slide ADD
+    11.9 mm with one start, 3.3 mm with 1.0."""
     slide_min_m: float = 0.005
     """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
     hand_anchor_cells: float = 1.0

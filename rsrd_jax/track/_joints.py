@@ -11,8 +11,9 @@ fixes the joint (fitted point within 3–6 mm of the true hinge axis on the stap
 
 Slides have no joint point: the first pass turns a slide by a few degrees about a point far from
 the contact, and a second pass tied there tracks a turn (nerf_gun's slide 37 mm off). Such parts
-(`is_slide_candidate`) are re-tracked on a slide joint along each of their principal axes
-(`slide_axes`, `prismatic_loss`); `track_video` keeps the hypothesis with the lowest data loss.
+(`is_slide_candidate`) are re-tracked on a slide joint along each of their principal axes and
+the level direction away from their neighbour (`slide_directions`, `prismatic_loss`);
+`track_video` keeps the hypothesis with the lowest data loss.
 """
 
 from __future__ import annotations
@@ -163,6 +164,26 @@ def slide_axes(points: np.ndarray) -> np.ndarray:
     its front panel's normal)."""
     _, _, Vt = np.linalg.svd(points - points.mean(0), full_matrices=False)
     return Vt
+
+
+def slide_directions(points: np.ndarray, offset: np.ndarray, up: np.ndarray | None = None,
+                     min_angle_deg: float = 15.0) -> np.ndarray:
+    """C×3: the slide directions a part is tried along (rows, object frame): its principal axes
+    (`slide_axes`), then the direction of `offset` (from its neighbour's centroid to its own)
+    made level (its component along the support normal `up` removed, when known) unless it lies
+    within `min_angle_deg` of one of them. A part usually slides out of its neighbour along the
+    line between them, while a near-square part's principal axes are arbitrary in its plane:
+    the studio toy_drawer's drawer (80 × 90 mm bottom) has its diagonals as axes, and only the
+    offset direction (3° from the true pull) tracks it."""
+    axes = slide_axes(points)
+    d = np.asarray(offset, np.float64)
+    if up is not None:
+        u = np.asarray(up, np.float64) / np.linalg.norm(up)
+        d = d - (d @ u) * u
+    n = float(np.linalg.norm(d))
+    if n < 1e-9 or (np.abs(axes @ (d / n)) > np.cos(np.radians(min_angle_deg))).any():
+        return axes
+    return np.concatenate([axes, (d / n)[None]])
 
 
 def hinge_axis(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int, point: np.ndarray,
