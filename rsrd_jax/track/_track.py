@@ -231,27 +231,31 @@ def track_video(
         tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass,
                                                            None if up is None else np.asarray(up, np.float64)[:3])  # fmt: skip
         timings["joint_pass_s"] = time.perf_counter() - t_frames
-    # the slide hypotheses start each frame from a second, constant-velocity guess too; the
-    # joint-point (hinge) hypothesis keeps the configured starts: with the slides' on red_box and
-    # frog tracked worse (ADD 2.68 → 3.37 and 2.03 → 3.13 mm, the hinges kept)
-    vh = config.velocity_hypothesis if config.slide_velocity is None else config.slide_velocity
+    # with slide candidates every hypothesis, the joint point's too, starts each frame from a
+    # second, constant-velocity guess (`slide_velocity`) so that their data losses compare like
+    # with like; when the joint point wins it is tracked once more with the configured starts
+    # (with the second start, red_box and frog tracked worse: ADD 2.68 → 3.37 and 2.03 → 3.13 mm)
+    vh = config.velocity_hypothesis if not candidates or config.slide_velocity is None else config.slide_velocity
     key_b = key
-    best = per_frame_pass(tm, w, key_b, "track")
+    best = per_frame_pass(tm, w, key_b, "track", vh=vh)
     if candidates:
         # slide hypotheses: each candidate part in turn, along each of its axes (the others as
         # chosen so far); the lowest summed data loss over the frames wins when it is lower
         # by more than `slide_min_gain`
         t_h = time.perf_counter()
         trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
+        slid = False
         for k, nb, length, axes, pair_mask, slot_pair in candidates:
             for a in axes:
                 tm_h = _with_slide(tm, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
                 res = per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh)
                 trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
                 if trials[-1]["data_loss"] < (1.0 - config.slide_min_gain) * np.sum(best.data_loss):
-                    best, tm = res, tm_h
+                    best, tm, slid = res, tm_h, True
                     joint_info[str(k)]["slide_axis"] = trials[-1]["axis"]
         joint_info["slide_hypotheses"] = trials
+        if not slid and vh != config.velocity_hypothesis:
+            best = per_frame_pass(tm, w, key_b, "track")
         timings["slide_hypotheses_s"] = time.perf_counter() - t_h
     T_parts, obs_all, residual, visible, losses, key = best.T_parts, best.obs, best.residual, best.visible, best.loss, best.key
     for entry in best.logged:
