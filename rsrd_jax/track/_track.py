@@ -239,15 +239,16 @@ def track_video(
     key_b = key
     best = per_frame_pass(tm, w, key_b, "track", vh=vh)
     if candidates:
-        # slide hypotheses: each candidate part in turn, along each of its axes (the others as
-        # chosen so far); the lowest summed data loss over the frames wins when it is lower
+        # slide hypotheses: each candidate part in turn, along each of its axes (the other parts
+        # as chosen so far); the lowest summed data loss over the frames wins when it is lower
         # by more than `slide_min_gain`
         t_h = time.perf_counter()
         trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
         slid = False
         for k, nb, length, axes, pair_mask, slot_pair in candidates:
+            tm_k = tm  # part k's axes are alternatives: each is tried on the model without k's earlier winner
             for a in axes:
-                tm_h = _with_slide(tm, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
+                tm_h = _with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
                 res = per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh)
                 trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
                 if trials[-1]["data_loss"] < (1.0 - config.slide_min_gain) * np.sum(best.data_loss):
