@@ -115,7 +115,7 @@ class TrackConfig(eqx.Module):
     slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
     principal axes; the hypothesis (joint point or one of the slides) with the lowest data loss
     summed over the frames wins (by `slide_min_gain`). Costs up to four more second passes per
-    candidate part."""
+    candidate part, plus one when the joint point wins (`slide_velocity`)."""
     slide_held_only: bool = True
     """With `slides` and a fingertip source: only parts a hand held in the first pass (its hand
     anchors) are slide candidates (when no hand was anchored, every part stays one). Measured on
