@@ -113,7 +113,7 @@ class TrackConfig(eqx.Module):
     pass by more than `slide_min_m` and either did not turn or got a joint point far from the
     contact (`slide_point_ratio`) is tracked again in the second pass tied to its neighbour by a
     slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
-    principal axes; the hypothesis (joint point or one of the slides) with the lowest data loss
+    principal axes and the level direction out of its neighbour (`slide_directions`); the hypothesis (joint point or one of the slides) with the lowest data loss
     summed over the frames wins (by `slide_min_gain`). Costs up to four more second passes per
     candidate part, plus one when the joint point wins (`slide_velocity`)."""
     slide_held_only: bool = True
@@ -144,8 +144,8 @@ class TrackConfig(eqx.Module):
     joint point tracked with one start scored 96.6 against 92.8–93.5 for every slide with two);
     when the joint point wins, it is tracked once more with `velocity_hypothesis` (since session
     29; before, the hinges of red_box and frog kept this pass: ADD 2.68 → 3.37 and 2.03 → 3.13
-    mm). Measured on nerf_gun with the true slide axis: slide ADD
-    11.9 mm with one start, 3.3 mm with 1.0."""
+    mm). Measured on nerf_gun with the true slide axis: slide ADD 11.9 mm with one start, 3.3 mm
+    with 1.0."""
     slide_min_m: float = 0.005
     """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
     hand_anchor_cells: float = 1.0

@@ -232,9 +232,7 @@ def track_video(
                                                            None if up is None else np.asarray(up, np.float64)[:3])  # fmt: skip
         timings["joint_pass_s"] = time.perf_counter() - t_frames
     # with slide candidates every hypothesis, the joint point's too, starts each frame from a
-    # second, constant-velocity guess (`slide_velocity`) so that their data losses compare like
-    # with like; when the joint point wins it is tracked once more with the configured starts
-    # (with the second start, red_box and frog tracked worse: ADD 2.68 → 3.37 and 2.03 → 3.13 mm)
+    # second guess (`slide_velocity`, which says why); a winning joint point is re-run below
     vh = config.velocity_hypothesis if not candidates or config.slide_velocity is None else config.slide_velocity
     key_b = key
     best = per_frame_pass(tm, w, key_b, "track", vh=vh)
