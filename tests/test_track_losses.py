@@ -615,3 +615,41 @@ def test_hinge_axis_prefers_the_table_normal_on_a_near_tie():
     np.testing.assert_allclose(a1, [0.0, 0.0, 1.0], atol=1e-9)
     a2, _ = hinge_axis(T, cents, 1, 0, X, bar, cand, prefer_last=0.5 * (ratio - 1.0))
     np.testing.assert_allclose(a2, t_axis, atol=1e-9)
+
+
+def test_slide_choice_keeps_a_margin_tries_a_parts_axes_as_alternatives_and_stacks_parts():
+    """The slide hypotheses' choice loop (`track._track._choose_slides`) with scripted passes: the
+    models are tuples of (part, axis) slides, each pass's data loss a function of its model."""
+    from types import SimpleNamespace
+
+    from rsrd_jax.track._track import _choose_slides
+
+    x, y, z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+    losses = {
+        (): 100.0,
+        ((1, x),): 99.8,  # 0.2 % better: inside the 0.5 % margin, rejected
+        ((1, y),): 98.0,  # 2 % better: wins
+        ((1, z),): 97.8,  # better than y by only 0.2 %: rejected (compared with y's pass, not the start)
+        ((1, y), (2, x)): 90.0,  # part 2's slide on top of part 1's winner
+    }
+    calls = []
+
+    def with_slide(tm, k, nb, a, length, pair_mask, slot_pair):
+        return tm + ((k, tuple(a)),)
+
+    def run_pass(tm, k):
+        calls.append(tm)
+        return SimpleNamespace(data_loss=np.array([losses[tm] / 2, losses[tm] / 2]))
+
+    start = SimpleNamespace(data_loss=np.array([50.0, 50.0]))
+    cands = [(1, 0, 0.05, [np.array(x), np.array(y), np.array(z)], None, 0), (2, 0, 0.05, [np.array(x)], None, 1)]
+    best, tm, chosen, trials = _choose_slides(start, (), cands, 0.005, with_slide, run_pass)
+    # part 1's axes are each tried on the model without part 1's earlier winner
+    assert calls == [((1, x),), ((1, y),), ((1, z),), ((1, y), (2, x))]
+    assert tm == ((1, y), (2, x)) and float(np.sum(best.data_loss)) == 90.0
+    assert chosen == {1: list(y), 2: list(x)}
+    assert [t["data_loss"] for t in trials] == [100.0, 99.8, 98.0, 97.8, 90.0]
+    assert trials[0]["part"] is None and [t["part"] for t in trials[1:]] == [1, 1, 1, 2]
+    # with no hypothesis beating the margin the start is kept
+    best, tm, chosen, _ = _choose_slides(start, (), cands[:1], 0.05, with_slide, run_pass)
+    assert tm == () and best is start and chosen == {}

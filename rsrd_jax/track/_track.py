@@ -241,19 +241,14 @@ def track_video(
         # as chosen so far); the lowest summed data loss over the frames wins when it is lower
         # by more than `slide_min_gain`
         t_h = time.perf_counter()
-        trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
-        slid = False
-        for k, nb, length, axes, pair_mask, slot_pair in candidates:
-            tm_k = tm  # part k's axes are alternatives: each is tried on the model without k's earlier winner
-            for a in axes:
-                tm_h = _with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots)
-                res = per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh)
-                trials.append({"part": k, "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
-                if trials[-1]["data_loss"] < (1.0 - config.slide_min_gain) * np.sum(best.data_loss):
-                    best, tm, slid = res, tm_h, True
-                    joint_info[str(k)]["slide_axis"] = trials[-1]["axis"]
+        best, tm, chosen, trials = _choose_slides(
+            best, tm, candidates, config.slide_min_gain,
+            lambda tm_k, k, nb, a, length, pair_mask, slot_pair: _with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots),
+            lambda tm_h, k: per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh))  # fmt: skip
+        for k, axis in chosen.items():
+            joint_info[str(k)]["slide_axis"] = axis
         joint_info["slide_hypotheses"] = trials
-        if not slid and vh != config.velocity_hypothesis:
+        if not chosen and vh != config.velocity_hypothesis:
             best = per_frame_pass(tm, w, key_b, "track")
         timings["slide_hypotheses_s"] = time.perf_counter() - t_h
     T_parts, obs_all, residual, visible, losses, key = best.T_parts, best.obs, best.residual, best.visible, best.loss, best.key
@@ -395,6 +390,41 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
             jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
             jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
     return tm_b, info, key, candidates
+
+
+def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
+    """The slide hypotheses' choice (`TrackConfig.slides`).
+
+    Each candidate part in turn (the other parts as chosen so far) is tracked on a slide along
+    each of its axes; a hypothesis wins when its summed data loss is below the best so far by
+    more than the fraction `min_gain`. A part's axes are alternatives: each is tried on the model
+    as it was before the part's candidates (without an earlier winning axis of the same part),
+    and compared with the best pass so far, that winner included.
+
+    Args:
+        best: the pass to beat (a `_Pass`; its `data_loss` is summed).
+        tm: the model of that pass.
+        candidates: `(k, nb, length, axes, pair_mask, slot_pair)` per candidate part.
+        min_gain: `TrackConfig.slide_min_gain`.
+        with_slide: `(tm, k, nb, axis, length, pair_mask, slot_pair) -> tm` (`_with_slide`).
+        run_pass: `(tm, k) -> _Pass`, one per-frame pass on a hypothesis for part k.
+
+    Returns:
+        (best pass, its model, {part: winning axis}, the trials: part, axis and data loss of the
+        pass to beat and of each hypothesis, in order).
+    """
+    trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
+    chosen: dict[int, list[float]] = {}
+    for k, nb, length, axes, pair_mask, slot_pair in candidates:
+        tm_k = tm
+        for a in axes:
+            tm_h = with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair)
+            res = run_pass(tm_h, k)
+            trials.append({"part": int(k), "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
+            if trials[-1]["data_loss"] < (1.0 - min_gain) * float(np.sum(best.data_loss)):
+                best, tm = res, tm_h
+                chosen[int(k)] = trials[-1]["axis"]
+    return best, tm, chosen, trials
 
 
 def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask, slot_pair: int, use_pivots: bool) -> TrackModel:
