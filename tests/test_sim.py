@@ -4,6 +4,7 @@ stage, failed/colliding plans are reported and not executed, bad inputs give cle
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import jax.numpy as jnp
 import jaxlie
@@ -297,6 +298,31 @@ def test_approach_uses_the_plans_finger_opening(stapler, gt_plan, gt_result):
     base = gt_result.robot_q[gt_result.phase == 2, 14 + a]
     expect = min(max(float(gt_plan.q_approach[0, 14 + a]), 0.0), HOME_Q[14 + a])
     assert np.abs(base - expect).max() < 1.5e-3 and abs(expect - 0.02) > 3e-3
+
+
+def test_release_keeps_opening_while_a_pad_is_on_the_part(tmp_path):
+    """Regression (session 30): a tracked toy_drawer plan (robot trials, table yaw -149°; the
+    plan is `tests/data/toy_drawer_release_plan`) pinches the knob with the jaw nearly vertical.
+    After one opening of ``release_clearance`` the knob still rested on the lower pad and the
+    retreat dragged the drawer from 44 to 70 mm (Exec failed, 19.7 mm from the demo's end). With
+    the release opening further while a pad is within ``release_gap`` of the part, the retreat
+    leaves the drawer where the motion ended (the demo's final pose within tolerance)."""
+    studio = tmp_path / "toy_drawer"
+    make_object("toy_drawer", studio, StudioConfig(seed=0, demo_size=(32, 24), robot_size=(32, 24),
+                                                   parts=("demo", "robot_view")))  # fmt: skip
+    plan = load_plan(Path(__file__).parent / "data" / "toy_drawer_release_plan")
+    once = simulate_plan(plan, studio, SimConfig(release_step=0.0), progress=False)
+    more = simulate_plan(plan, studio, progress=False)
+    for r in (once, more):
+        assert r.stages["grasp"], r.reasons
+    slide = lambda r: r.object_qpos[:, 7]  # noqa: E731  (the drawer's slide after the free root's 7)
+    end = lambda r: slide(r)[r.phase == 4][-1]  # noqa: E731
+    assert once.stages["exec"] is False and slide(once)[-1] - end(once) > 0.015  # dragged out by the retreat
+    assert once.metrics["release"]["further_openings"]["left"] == 0
+    assert more.metrics["release"]["further_openings"]["left"] >= 1
+    assert more.metrics["release"]["jaw_mm"]["left"] > once.metrics["release"]["jaw_mm"]["left"] + 2.0
+    assert abs(slide(more)[-1] - end(more)) < 0.003
+    assert more.success, more.reasons
 
 
 def _planned_from_ground_truth(root):

@@ -107,6 +107,22 @@ class SimConfig(eqx.Module):
     release_clearance: float = 0.006
     """On release the jaw opens to its width on the part plus this (m), not fully: fully opened
     fingers (50 mm) knock neighbouring parts or tip light objects over."""
+    release_step: float = 0.004
+    """After the release's settle, while a pad of an active arm is within ``release_gap`` of its
+    part, that jaw opens by this much more (m, both fingers together) and settles again
+    (``release_settle``), up to fully open: a gripper that keeps opening until its fingers are
+    off the part. With one opening of ``release_clearance`` alone, a part that sagged onto the
+    lower pad as the jaw opened stayed on it and the retreat dragged it: on the studio toy_drawer
+    (tracked plans, session 30) one pad touched the knob after every release and the retreat
+    pulled the drawer out by 3–26 mm more. Pads pinned by friction on another surface do not
+    open whatever the command (the oracle stapler plan's pads press on the base); the command
+    then ends fully open. 0 disables it."""
+    release_gap: float = 0.002
+    """``release_step``: the distance (m) both pads must keep from the part before the retreat
+    (with the pads just off the part, 1 mm, the retreat's servo lag brought one back onto the
+    toy_drawer's knob, which it dragged 28 mm)."""
+    release_settle: float = 0.1
+    """Settle time (s) after each further opening of ``release_step``."""
     retreat_distance: float = 0.08
     """After release, the TCPs back off this far (m) along their approach axis (−gripper z)."""
     disturbance_tolerance: float = 0.01

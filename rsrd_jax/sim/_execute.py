@@ -5,7 +5,8 @@ settle at home → transit home → pre-grasp (smooth point-to-point) → approa
 grippers opened as the plan's approach says) → close the active grippers until the fingers stall,
 each arm yielding along its jaw axis to the fingers' net force (compliant seating,
 ``SimConfig.seat_max_shift``) → follow ``q_video`` with the seating shift kept in the TCP frame
-(piecewise linear, time-scaled so no arm joint exceeds ``joint_speed``) → open → retreat along
+(piecewise linear, time-scaled so no arm joint exceeds ``joint_speed``) → open (further while a pad still
+feels its part, ``SimConfig.release_step``) → retreat along
 −TCP z → settle. The object is simulated with its real joints; nothing is welded to the gripper,
 so a part moves only through finger contacts and friction.
 """
@@ -240,6 +241,13 @@ class _Runner:
                     if self.gid2part[h] == self.part[a]:
                         out[a, f] = True
         return out
+
+    def pad_gaps(self, a: int | np.integer) -> np.ndarray:
+        """(2,) distance (m) of arm ``a``'s two finger pads to its intended part (negative =
+        penetration; 0.05 when farther than that)."""
+        m, d, s = self.m, self.d, self.s
+        return np.array([min(mujoco.mj_geomDistance(m, d, int(s.pad_geoms[a, f]), int(h), 0.05, None)
+                             for h in s.part_geoms[self.part[a]]) for f in range(2)])  # fmt: skip
 
     def jaw_force(self, a: int | np.integer) -> float:
         """Net contact force (N) on arm ``a``'s fingers along its jaw axis (TCP x)."""
@@ -478,8 +486,7 @@ def simulate_plan(
         grip_width = 2 * d.qpos[scene.robot_qpos[14 + arms]]
         pads0 = run.pad_contacts()
         # gap of each pad to the arm's intended part (negative = penetration)
-        gaps = {a: [min(mujoco.mj_geomDistance(m, d, int(scene.pad_geoms[a, f]), int(h), 0.05, None)
-                        for h in scene.part_geoms[part[a]]) for f in range(2)] for a in arms}  # fmt: skip
+        gaps = {a: run.pad_gaps(a).tolist() for a in arms}
         T_tcp0, T_part0 = scene.tcp_poses(), scene.part_poses()
         rel0 = {a: np.linalg.inv(T_part0[part[a]]) @ T_tcp0[a] for a in arms}
         # follow the plan
@@ -494,6 +501,18 @@ def simulate_plan(
         run.phase = 5
         run.grip[arms] = np.minimum(HOME_Q[14 + arms], d.qpos[scene.robot_qpos[14 + arms]] + cfg.release_clearance / 2)
         run.hold(qv[-1], cfg.settle_time)
+        release_steps = np.zeros(2, int)
+        while cfg.release_step > 0:
+            # open further while a pad is still at the part (it may rest on the lower pad)
+            near = np.array([run.pad_gaps(a).min() < cfg.release_gap for a in arms])
+            more = arms[near & (run.grip[arms] < HOME_Q[14 + arms])]
+            if not len(more):
+                break
+            run.grip[more] = np.minimum(HOME_Q[14 + more], run.grip[more] + cfg.release_step / 2)
+            release_steps[more] += 1
+            run.hold(qv[-1], cfg.release_settle)
+        release_open = d.qpos[scene.robot_qpos[14:16]].copy()
+        release_gaps = {a: run.pad_gaps(a) for a in arms}
         run.phase = 6
         q_ret = qv[-1].copy()
         scratch = mujoco.MjData(m)
@@ -601,6 +620,9 @@ def simulate_plan(
                   "held_fraction": {("right", "left")[a]: round(held[a], 3) for a in arms},
                   "disturbance_mm": round(1000 * disturbed, 2),
                   "seat_shift_mm": {("right", "left")[a]: round(1000 * float(shift[a]), 2) for a in arms}},
+        "release": {"jaw_mm": {("right", "left")[a]: round(2000 * float(release_open[a]), 2) for a in arms},
+                    "further_openings": {("right", "left")[a]: int(release_steps[a]) for a in arms},
+                    "pad_gap_mm": {("right", "left")[a]: [round(1000 * float(g), 2) for g in release_gaps[a]] for a in arms}},
         "exec": {"final_error_mm": [round(1000 * e[0], 2) for e in final_err],
                  "final_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in final_err],
                  "moving_parts": moved,
