@@ -258,6 +258,8 @@ def main(argv=None) -> int:
                          "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
     ap.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
+    ap.add_argument("--hand-grasps", action="store_true",
+                    help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps)")
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--build-size", choices=("pipeline", "default"), default="pipeline",
@@ -278,7 +280,7 @@ def main(argv=None) -> int:
         sizes = {} if a.build_size == "pipeline" else DEFAULT_BUILD_SIZES
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
                              plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight,
-                             **sizes)  # fmt: skip
+                             plan_hand_grasps=a.hand_grasps, **sizes)  # fmt: skip
         commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
         res["config"]["commit"] = commit

@@ -272,7 +272,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     if (out / "plan.npz").exists() and not a.overwrite:
         print(f"error: {out / 'plan.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
-    hands = hand_parts = None
+    hands = hand_parts = hand_points = None
     mesh_points = None
     if a.studio_gt:
         try:
@@ -301,11 +301,12 @@ def cmd_plan(a: argparse.Namespace) -> int:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
         T_robot_obj = _parse_object_pose(a.object_pose)
-        from .pipeline import anchored_hand_parts
+        from .pipeline import anchored_hand_parts, anchored_hand_points
 
         hand_parts = anchored_hand_parts(traj)
+        hand_points = anchored_hand_points(traj) if a.hand_grasps else None
     if a.hands == "none":
-        hands = hand_parts = None
+        hands = hand_parts = hand_points = None
     cfg = PlanConfig(
         num_keyframes=a.keyframes, bimanual={"auto": "auto", "yes": True, "no": False}[a.bimanual], parts=tuple(a.parts) if a.parts else None,
         max_parts=a.max_parts, chunk_size=a.chunk, max_iterations=a.max_iterations, seed=a.seed,
@@ -319,7 +320,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     robot = load_yumi()
     plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
-                      hand_parts=hand_parts)  # fmt: skip
+                      hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
     save_plan(plan, out)
     print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
     if a.rerun and plan.success:
@@ -498,6 +499,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--out", required=True, help="output directory (plan.npz + plan.json)")
     pl.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' ±1σ extents, not their centres (thin parts)")
+    pl.add_argument("--hand-grasps", action="store_true",
+                    help="also sample grasps where the tracker anchored each hand on its part (trajectory.json's "
+                         "hand_anchors; PlanConfig.hand_grasp_config)")  # fmt: skip
     pl.add_argument("--keyframes", type=int, default=50, help="keyframes of the joint trajectory")
     pl.add_argument("--bimanual", choices=("auto", "yes", "no"), default="auto",
                     help="plan both arms on a ranked (left, right) part pair: yes, no, or auto (when both of the "

@@ -95,6 +95,9 @@ class PipelineConfig:
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
     trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
     the jaw (Grasp fails)."""
+    plan_hand_grasps: bool = False
+    """Also sample grasps near where the tracker anchored each hand (`anchored_hand_points`,
+    `PlanConfig.hand_grasp_config`)."""
     plan_grasp_keyframe_weight: float = 3.0
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
     register_seeds: int = 16
@@ -163,6 +166,14 @@ def anchored_hand_parts(traj) -> tuple[int, int] | None:
     its depth error (1–8 %; on the frog both hands then lie 19–26 mm from the legs they hold)."""
     parts = [a.get("part") for a in traj.meta.get("hand_anchors", [])]
     return (int(parts[0]), int(parts[1])) if len(parts) == 2 and None not in parts else None
+
+
+def anchored_hand_points(traj) -> list[tuple[int, np.ndarray]]:
+    """(part, point) of every hand the tracker's hand term anchored (``trajectory.json``'s
+    ``hand_anchors``): where the hand held that part, in its rest-centroid frame (m), the frame
+    the planner's part points use. The planner samples grasps near them."""
+    return [(int(a["part"]), np.asarray(a["point_mm"], np.float64) / 1000.0)
+            for a in traj.meta.get("hand_anchors", []) if a.get("part") is not None]  # fmt: skip
 
 
 def studio_separable(studio_dir: Path) -> bool:
@@ -308,10 +319,11 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         if cfg.plan_extent_meshes:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         hand_parts = anchored_hand_parts(traj)
+        hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
                           config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
                                             grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight),
-                          mesh_points=mesh_points, hand_parts=hand_parts)  # fmt: skip
+                          mesh_points=mesh_points, hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
             from .plan import log_plan

@@ -376,3 +376,38 @@ def test_merged_spread_grasps_reach_the_rim_without_duplicates():
     # the spread set reaches farther from the plate's centre than the best-scored set
     r = lambda g: np.linalg.norm(np.asarray(g.T_part_grasp)[np.asarray(g.valid), 4:6], axis=1).max()  # noqa: E731
     assert r(m) > r(a) + 0.01
+
+
+def test_grasps_near_a_point_start_within_its_radius_and_rank_by_distance_to_it():
+    """``near=(point, radius)``: on a plate whose best-scored grasps cluster at the centre, every
+    first contact lies within the radius of a point at the plate's corner (checked against the
+    contacts' own coordinates), the grasps are still antipodal across the plate's thickness, the
+    best grasp is among the nearest to the point, and a point off the plate reaches as far beyond
+    its nearest vertex (instead of sampling nothing)."""
+    plate = trimesh.creation.box(extents=(0.10, 0.07, 0.008))
+    mesh = PartMesh(np.asarray(plate.vertices), np.asarray(plate.faces), "convex_hull", float("nan"), True, "")
+    # a finely triangulated plate (a box's 12 faces would make the face pre-selection moot)
+    sub = plate.subdivide_to_size(0.005)
+    fine = PartMesh(np.asarray(sub.vertices), np.asarray(sub.faces), "convex_hull", float("nan"), True, "")
+    key = jax.random.key(1)
+    cfg = GraspConfig(num_grasps=16, num_samples=2000)
+    corner = np.array([0.04, 0.025, 0.0])
+    for m in (mesh, fine):
+        g = sample_antipodal_grasps(m, key, cfg, near=(corner, 0.015))
+        ok = np.asarray(g.base_valid)
+        assert ok.sum() >= 8 and g.result == GraspResult.success
+        c = np.asarray(g.contacts)[ok]  # (n, 2, 3)
+        reach = 0.015 + np.linalg.norm(np.asarray(m.vertices) - corner, axis=1).min()
+        assert np.all(np.linalg.norm(c[:, 0] - corner, axis=1) <= reach + 1e-6)
+        np.testing.assert_allclose(np.abs(c[:, 0, 2] - c[:, 1, 2]), 0.008, atol=2e-4)  # across the thickness
+        mid = c.mean(1)
+        d = np.linalg.norm(mid - corner, axis=1)
+        assert d[0] <= np.percentile(d, 25) + 1e-9  # best first: centred on the point
+    base = sample_antipodal_grasps(fine, key, cfg)
+    mid0 = np.asarray(base.contacts)[np.asarray(base.base_valid)].mean(1)
+    assert np.linalg.norm(mid0 - corner, axis=1).min() > 0.015  # without `near` none is near the corner
+    far = sample_antipodal_grasps(fine, key, cfg, near=(np.array([0.2, 0.0, 0.0]), 0.01))
+    cf = np.asarray(far.contacts)[np.asarray(far.base_valid)]
+    assert len(cf) and np.all(cf[:, 0, 0] >= 0.05 - 0.01 - 1e-6)  # within 10 mm of the plate's +x edge
+    with pytest.raises(ValueError, match="near"):
+        sample_antipodal_grasps(fine, key, cfg, near=(np.array([np.nan, 0.0, 0.0]), 0.01))

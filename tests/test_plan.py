@@ -802,3 +802,49 @@ def test_auto_bimanual_needs_both_hands_on_distinct_parts_one_moved():
     tips_still[:, 0, :, 2] = 0.05
     assert not decide(tips_still, still)[0] and "neither part moved" in decide(tips_still, still)[1]
     assert not decide(tips[:, :1])[0]  # one hand
+
+
+def _plate_with_post():
+    """Surface points of one part: an 80 × 80 × 8 mm plate lying on the table with a 12 × 12 ×
+    30 mm post standing on it 30 mm off centre (object frame: table top z = 0); the part frame
+    is its rest centroid. The plate is too wide to pinch across and cannot be pinched across its
+    thickness from the table, so only the post can be held."""
+    def box(lo, hi, step=0.002):
+        axes = [np.arange(a, b + 1e-9, step) for a, b in zip(lo, hi)]
+        g = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        on = np.any(np.isclose(g, lo, atol=1e-9) | np.isclose(g, hi, atol=1e-9), axis=1)
+        return g[on]
+
+    plate = box((-0.04, -0.04, 0.0), (0.04, 0.04, 0.008))
+    post = box((0.024, -0.006, 0.008), (0.036, 0.006, 0.038))
+    post = post[post[:, 2] > 0.0085]  # the post's foot is inside the plate's top
+    pts = np.concatenate([plate, post])
+    pts += np.random.default_rng(0).normal(0.0, 2e-4, pts.shape)  # (an exact grid is degenerate for the alpha shape)
+    c = pts.mean(0)
+    s = np.linspace(0, 1, 6)
+    traj = np.asarray([jaxlie.SE3.from_translation(jnp.asarray(c + [0.03 * v, 0.0, 0.03 * v])).wxyz_xyz for v in s])[:, None]
+    return pts - c, traj, np.array([0.03, 0.0, 0.023]) - c
+
+
+def test_grasps_near_the_hand_hold_the_part_where_the_demonstrator_did(robot):
+    """The centre-scored grasps of a plate with a post cluster on the plate, where none seats
+    (the table is under it); with the point the demonstrator's hand held (the post) the planner
+    also samples grasps there, and the plan holds the post: its grasp centre lies on the post
+    (checked in the part frame against the post's box) and plan.json says it is a hand grasp."""
+    pts, traj, hand = _plate_with_post()
+    cfg = dataclasses.replace(CFG, grasp_config=GraspConfig(num_grasps=4), spread_grasp_config=None,
+                              hand_grasp_config=GraspConfig(num_grasps=4), max_candidates=16)  # fmt: skip
+    T_robot_obj = np.array([1.0, 0, 0, 0, 0.45, -0.15, 0.0])
+    without = plan_robot(robot, [pts], traj, T_robot_obj, config=cfg)
+    assert not without.success and without.info["rejections"]["grasp_collision"] > 0
+    plan = plan_robot(robot, [pts], traj, T_robot_obj, config=cfg, hand_points=[(0, hand)])
+    assert plan.success, (plan.message, plan.info["rejections"])
+    assert plan.info["chosen"]["hand_grasp"] == [True, False]
+    assert plan.info["hand_points_mm"] == [[0, [round(1e3 * float(v), 2) for v in hand]]]
+    # the chosen grasp (backed off by its seating depth along its approach axis) pinches the post
+    depth = plan.info["chosen"]["grasp_depth"][0]
+    g = jaxlie.SE3(jnp.asarray(plan.T_part_grasp[0], jnp.float32)) @ jaxlie.SE3.from_translation(jnp.asarray([0.0, 0.0, depth]))
+    c_obj = np.asarray(g.translation()) + traj[0, 0, 4:]  # at rest (no rotation): object frame
+    assert 0.024 - 0.006 <= c_obj[0] <= 0.036 + 0.006 and abs(c_obj[1]) <= 0.012 and c_obj[2] > 0.008
+    with pytest.raises(ValueError, match="hand_points"):
+        plan_robot(robot, [pts], traj, T_robot_obj, config=cfg, hand_points=[(1, hand)])

@@ -209,6 +209,7 @@ class _Params(eqx.Module):
 
 def _sample_impl(
     tri: Float[Array, "f 3 3"],
+    face_weight: Float[Array, " f"],
     centroid: Float[Array, "3"],
     radius: Float[Array, ""],
     key: PRNGKeyArray,
@@ -224,7 +225,7 @@ def _sample_impl(
     normal = cross / jnp.maximum(2.0 * area, 1e-30)[:, None]
 
     k_face, k_bary, k_cone = jax.random.split(key, 3)
-    face = jax.random.choice(k_face, tri.shape[0], (num_samples,), p=area / jnp.sum(area))
+    face = jax.random.choice(k_face, tri.shape[0], (num_samples,), p=area * face_weight / jnp.sum(area * face_weight))
     r = jax.random.uniform(k_bary, (num_samples, 2))
     s = jnp.sqrt(r[:, 0])
     w = jnp.stack([1.0 - s, s * (1.0 - r[:, 1]), s * r[:, 1]], axis=-1)
@@ -263,7 +264,10 @@ def _sample_impl(
     cos2 = jnp.sum(n2 * d, axis=-1)
     width_ok = hit & (width >= prm.min_width) & (width <= prm.max_width)
     cos_cone = prm.cos_cone
-    antipodal = width_ok & (cos1 >= cos_cone) & (cos2 >= cos_cone)
+    # first contacts beyond `radius` of the centre point are dropped (a no-op without `near`:
+    # every surface point lies within the farthest vertex's distance of the centroid)
+    within = jnp.linalg.norm(p1 - centroid, axis=-1) <= radius * (1.0 + 1e-4)
+    antipodal = width_ok & (cos1 >= cos_cone) & (cos2 >= cos_cone) & within
 
     mid = 0.5 * (p1 + p2)
     anti = (0.5 * (cos1 + cos2) - cos_cone) / jnp.maximum(1.0 - cos_cone, 1e-9)
@@ -327,7 +331,8 @@ def _bucket(n: int) -> int:
 
 
 def sample_antipodal_grasps(
-    mesh: PartMesh, key: PRNGKeyArray, config: GraspConfig = GraspConfig()
+    mesh: PartMesh, key: PRNGKeyArray, config: GraspConfig = GraspConfig(),
+    near: tuple[Float[np.ndarray, "3"], float] | None = None,
 ) -> PartGrasps:
     """Antipodal parallel-jaw grasps of one part, augmented to a fixed-size candidate set.
 
@@ -343,10 +348,16 @@ def sample_antipodal_grasps(
     No grasp is not an error: `result` says why (e.g. `width_out_of_range`) and every row is
     padding.
 
+    With `near = (point, radius)` the first contacts are sampled only within `radius` plus the
+    nearest vertex's distance of `point` (e.g. where the demonstrator's hand held the part, a
+    point inside the part or just off its surface), and centredness is measured from `point` (1
+    there, 0 at that distance) instead of the mesh centroid.
+
     Args:
         mesh: closed, outward-oriented part mesh (part frame, metres).
         key: PRNG key.
         config: sampling options (static: changing one recompiles).
+        near: optional (point (3,), radius) in the part frame, metres.
 
     Returns:
         PartGrasps with n = num_grasps × 2 × num_rolls × len(shifts) rows.
@@ -356,15 +367,26 @@ def sample_antipodal_grasps(
     if config.num_grasps < 1 or config.num_samples < 1 or config.num_rolls < 1 or len(config.shifts) < 1:
         raise ValueError(f"config: counts must be positive, got {config}")
     tri = np.asarray(mesh.vertices, dtype=np.float32)[np.asarray(mesh.faces)]
-    fb = _bucket(len(tri))
+    n_f = len(tri)
+    fb = _bucket(n_f)
     # Degenerate padding faces have zero area: never sampled, never hit.
-    tri = np.concatenate([tri, np.zeros((fb - len(tri), 3, 3), np.float32)])
+    tri = np.concatenate([tri, np.zeros((fb - n_f, 3, 3), np.float32)])
+    weight = np.zeros(fb, np.float32)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
-    tm = mesh.to_trimesh()
-    centroid = np.asarray(tm.center_mass if mesh.watertight and tm.volume > 0 else verts.mean(0))
-    radius = max(float(np.linalg.norm(verts - centroid, axis=-1).max()), 1e-9)
+    if near is None:
+        weight[:n_f] = 1.0
+        tm = mesh.to_trimesh()
+        centroid = np.asarray(tm.center_mass if mesh.watertight and tm.volume > 0 else verts.mean(0))
+        radius = max(float(np.linalg.norm(verts - centroid, axis=-1).max()), 1e-9)
+    else:
+        centroid = np.asarray(near[0], np.float64).reshape(-1)
+        if centroid.shape != (3,) or not np.all(np.isfinite(centroid)) or not float(near[1]) > 0:
+            raise ValueError(f"near: expected a finite point (3,) and a radius > 0 (m), got {near}")
+        dist = np.linalg.norm(tri[:n_f] - centroid, axis=-1).min(1)  # nearest vertex of each face
+        radius = float(near[1]) + float(dist.min())  # measured from the surface nearest the point
+        weight[:n_f] = dist <= radius
     return _sample(
-        jnp.asarray(tri), jnp.asarray(centroid, jnp.float32), jnp.asarray(radius, jnp.float32), key,
+        jnp.asarray(tri), jnp.asarray(weight), jnp.asarray(centroid, jnp.float32), jnp.asarray(radius, jnp.float32), key,
         _Params.of(config), config.num_samples, config.num_grasps, config.num_rolls, config.ray_batch,
     )
 

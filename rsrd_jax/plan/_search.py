@@ -209,6 +209,16 @@ class PlanConfig(eqx.Module):
     between arm assignments; ``info["chosen"]["spread_grasp"]``): a rim grasp holds a part far
     from its centre, where tracking errors move it most (the stapler's arm was pushed 43 mm by
     the approach when a spread grasp won on cost)."""
+    hand_grasp_config: GraspConfig | None = GraspConfig(num_grasps=32)
+    """A third sampling of a part the demonstrator held (``plan_robot(hand_points=...)``): first
+    contacts only within ``hand_grasp_radius`` of where the hand held it, best nearest it
+    (:func:`rsrd_jax.grasp.sample_antipodal_grasps` with ``near``). Merged after the best-scored
+    grasps and ranked with them (before the spread set). The centre-scored grasps of a part
+    reach only where its surface is large: on the tracked toy_drawer (session 30) the drawer's
+    centroid lies on its front panel, its best grasps 36 mm (mean) from the knob the hand
+    pulled, and 20 of 4464 valid grasps seated; None = off."""
+    hand_grasp_radius: float = 0.02
+    """Radius (m) around each hand's point within which ``hand_grasp_config`` samples."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -611,6 +621,7 @@ def plan_robot(
     config: PlanConfig = PlanConfig(),
     mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
     hand_parts: tuple[int, int] | None = None,
+    hand_points: Sequence[tuple[int, Float[np.ndarray, "3"]]] | None = None,
 ) -> RobotPlan:
     """Plan a YuMi joint trajectory that makes grasped parts follow a part trajectory.
 
@@ -656,6 +667,9 @@ def plan_robot(
             anchors, which a depth error of the tracked object does not move, unlike the 3D
             fingertips in the object frame). Distinct parts, one of which moved, are planned
             bimanually (that pair only); otherwise, or if that fails, single-arm.
+        hand_points: optional (part, point) pairs: where the demonstrator's hands held which
+            part (part frame, m; e.g. the tracker's hand anchors). Grasps are also sampled near
+            them (``config.hand_grasp_config``) when grasps are not given.
 
     Returns:
         :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why. Its
@@ -666,9 +680,14 @@ def plan_robot(
     """
     if config.bimanual not in (True, False, "auto"):
         raise ValueError(f"config.bimanual must be True, False or 'auto', got {config.bimanual!r}")
+    if hand_points is not None:
+        hand_points = [(int(k), np.asarray(x, np.float64).reshape(-1)) for k, x in hand_points]
+        bad = [(k, x) for k, x in hand_points if not 0 <= k < len(part_points) or x.shape != (3,) or not np.all(np.isfinite(x))]
+        if bad:
+            raise ValueError(f"hand_points: expected (part in 0..{len(part_points) - 1}, finite point (3,)) pairs, got {bad}")
     args = (robot, part_points, T_obj_part, T_robot_obj, hands, grasps)
     if config.bimanual != "auto":
-        plan = _plan_robot(*args, config, mesh_points)
+        plan = _plan_robot(*args, config, mesh_points, hand_points)
         plan.info["config"] = dataclasses.asdict(config)
         return plan
     why = "parts given" if config.parts is not None else "no hands" if hands is None else "one part"
@@ -689,10 +708,11 @@ def plan_robot(
         rk = rank_parts(list(part_points), np.asarray(T_obj_part, float), hands, config=config.rank_config)
         motion = np.asarray(rk.relative_motion, np.float64)
         decided, why = _two_hands(rk, motion >= config.min_motion_fraction * motion.max(), config.bimanual_contact)
-    plan = _plan_robot(*args, dataclasses.replace(pair_config if decided else config, bimanual=decided), mesh_points)
+    plan = _plan_robot(*args, dataclasses.replace(pair_config if decided else config, bimanual=decided), mesh_points,
+                       hand_points)
     decision = {"mode": "auto", "bimanual": decided, "reason": why}
     if decided and not plan.success:  # a single arm may still reproduce part of the demo
-        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points)
+        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points, hand_points)
         decision.update(fallback="single-arm", bimanual_result=plan.result_name, bimanual_message=plan.message,
                         bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
         plan = single
@@ -710,6 +730,7 @@ def _plan_robot(
     grasps: dict[int, PartGrasps] | None = None,
     config: PlanConfig = PlanConfig(),
     mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
+    hand_points: Sequence[tuple[int, np.ndarray]] | None = None,
 ) -> RobotPlan:
     """The body of :func:`plan_robot` (``config.bimanual`` True or False)."""
     import time
@@ -774,6 +795,7 @@ def _plan_robot(
     # Grasps (lazily per part)
     grasp_cache: dict[int, PartGrasps] = dict(grasps or {})
     spread_row: dict[int, int] = {}  # part -> first row of its spread grasps (after the best-scored ones)
+    hand_row: dict[int, int] = {}  # part -> first row of its grasps near the hands (between the two)
     key = jax.random.PRNGKey(config.seed)
 
     def get_grasps(k: int) -> PartGrasps:
@@ -781,6 +803,13 @@ def _plan_robot(
             mesh = build_part_mesh(np.asarray((part_points if mesh_points is None else mesh_points)[k]), config.mesh_config)
             kk = jax.random.fold_in(key, k)
             g = sample_antipodal_grasps(mesh, kk, config.grasp_config)
+            hand_row[k] = int(g.T_part_grasp.shape[0])
+            if config.hand_grasp_config is not None:
+                for j, (kh, x) in enumerate(hand_points or []):
+                    if kh == k:
+                        near = sample_antipodal_grasps(mesh, jax.random.fold_in(kk, 1000 + j), config.hand_grasp_config,
+                                                       near=(x, config.hand_grasp_radius))  # fmt: skip
+                        g = merge_grasps(g, near)
             spread_row[k] = int(g.T_part_grasp.shape[0])
             if config.spread_grasp_config is not None:
                 g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, config.spread_grasp_config))
@@ -909,6 +938,9 @@ def _plan_robot(
         return _failure(res, msg, T_robot_obj, idx, info)
     info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
     info["chosen"]["spread_grasp"] = bool(best["tier"])
+    info["chosen"]["hand_grasp"] = [bool(k >= 0 and hand_row.get(int(k), np.inf) <= i < spread_row.get(int(k), -1))
+                                    for k, i in zip(best["part"], best["grasp_index_arr"])]  # fmt: skip
+    info["hand_points_mm"] = [[int(k), [round(1e3 * float(v), 2) for v in x]] for k, x in (hand_points or [])]
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
                                      for k, i in zip(best["part"], best["grasp_index_arr"])]
     q_key = best["q"]
