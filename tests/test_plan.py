@@ -848,3 +848,16 @@ def test_grasps_near_the_hand_hold_the_part_where_the_demonstrator_did(robot):
     assert 0.024 - 0.006 <= c_obj[0] <= 0.036 + 0.006 and abs(c_obj[1]) <= 0.012 and c_obj[2] > 0.008
     with pytest.raises(ValueError, match="hand_points"):
         plan_robot(robot, [pts], traj, T_robot_obj, config=cfg, hand_points=[(1, hand)])
+
+
+def test_bimanual_pairs_take_one_candidate_per_base_grasp_first():
+    """``bimanual_per_base``: the rows combined into bimanual pairs come from distinct base grasps
+    first, in cost order, and only then further rolls of the same ones."""
+    from rsrd_jax.plan._search import _top_per_base
+
+    base = np.array([0, 0, 0, 1, 1, 2, 3, 3])
+    ids = np.array([1, 0, 3, 2, 4, 6, 5, 7])  # cost order
+    assert _top_per_base(ids, base, 4, 1).tolist() == [1, 3, 6, 5]
+    assert _top_per_base(ids, base, 6, 1).tolist() == [1, 3, 6, 5, 0, 2]
+    assert _top_per_base(ids, base, 5, 2).tolist() == [1, 0, 3, 4, 6]
+    assert _top_per_base(ids, base, 20, 1000).tolist() == ids.tolist()

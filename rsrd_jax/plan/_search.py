@@ -192,8 +192,16 @@ class PlanConfig(eqx.Module):
     passes wins, so more candidates only add fallbacks."""
     top_k_per_arm: int = 12
     """Bimanual: best single-arm candidates per arm combined (k × k bimanual solves; 144 fill one
-    ``chunk_size`` batch, which is padded to 160 anyway). The best few by cost are often rolls of
-    one grasp: on the studio frog all 16 pairs of the best 4 collided (arm against arm or part)."""
+    ``chunk_size`` batch, which is padded to 160 anyway), see ``bimanual_per_base``. The best few
+    by cost are often rolls of one grasp: on the studio frog all 16 pairs of the best 4 collided
+    (arm against arm or part)."""
+    bimanual_per_base: int = 1
+    """Bimanual: at most this many of an arm's ``top_k_per_arm`` candidates come from one base grasp
+    (its rolls and shifts), the rest from the next base grasps in cost order (and only then more
+    of the same ones). The cheapest candidates are mostly rolls of one or two grasps, so pairs of
+    them differ little: on a tracked frog (session 30, table yaw -5°) all 144 pairs of the best
+    12 per arm put the grippers into each other (median -11 mm), with one candidate per base
+    grasp 102 of 144 were collision-free."""
     grasp_config: GraspConfig = GraspConfig(num_grasps=64)
     """Antipodal grasp sampling when grasps are not given. More base grasps than RSRD's 10: most
     are removed by seating (e.g. grasps in the middle of a plate put the palm into it; on the
@@ -977,6 +985,19 @@ def _first_empty_stage(per_arm, att) -> str | None:
     return None
 
 
+def _top_per_base(ids: np.ndarray, base_index: np.ndarray, k: int, per_base: int) -> np.ndarray:
+    """The first ``k`` of the candidate rows ``ids`` (in their order) taking at most ``per_base``
+    rows of one base grasp (``base_index[row]``) before any further row of it (those follow, in
+    order, when fewer base grasps survived)."""
+    seen: dict[int, int] = {}
+    first, rest = [], []
+    for i in ids:
+        b = int(base_index[i])
+        seen[b] = seen.get(b, 0) + 1
+        (first if seen[b] <= per_base else rest).append(int(i))
+    return np.asarray((first + rest)[:k], int)
+
+
 def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info,
              spread_row: dict[int, int]):
     """Single arm: survivors ordered by (tier, cost). Bimanual: top-k × top-k joint solves.
@@ -997,8 +1018,8 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
                      target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i],
                      tier=int(tier(k, i))) for i in ids]
     (a0, k0, b0, al0, t0, g0), (a1, k1, b1, al1, t1, g1) = per_arm
-    i0 = order(k0, b0, al0)[: cfg.top_k_per_arm]
-    i1 = order(k1, b1, al1)[: cfg.top_k_per_arm]
+    i0 = _top_per_base(order(k0, b0, al0), np.asarray(g0.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
+    i1 = _top_per_base(order(k1, b1, al1), np.asarray(g1.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
     pairs = [(i, j) for i in i0 for j in i1]
     n = len(pairs)
     K = b0.q.shape[1]
