@@ -108,6 +108,16 @@ class TrackConfig(eqx.Module):
     (90 frames, the robot trials' build): the front leg's tilted minor principal axis (19° off
     the true vertical hinge) beat the table normal by 8.54 against 8.55 mm, and the tracked leg
     turned 28° of 40° with a 9° roll."""
+    hinge_hands: bool = True
+    """With `hinge_axes` and a fingertip source: where a hand held a hinged part (or its
+    neighbour) in the first pass, the hinge candidates are also scored by how well turns about
+    them move the hand's anchor along its 2D pinch track (`hand_hinge_residual`). A first pass
+    that falls behind a fast turn under the hand settles on a turn that explains the part's
+    points but not the hand's path: the studio bear's waving arm (126° in 30 frames, most of it
+    hidden by the hand) was tracked about an axis 78° off its true one; with the pinch track the
+    arm's principal axis 12° off it is chosen (robot trials' build, 120 frames: arm ADD 24.3 →
+    10.0 mm, object mean 8.6 → 4.5 mm; `slide_hand_ratio` also rules out the arm's slides:
+    tracking 1371 → 219 s)."""
     slides: bool = True
     """With `joints`: slide hypotheses. A part that moved relative to its neighbour in the first
     pass by more than `slide_min_m` and either did not turn or got a joint point far from the
@@ -132,6 +142,17 @@ class TrackConfig(eqx.Module):
     4.80 / 3.63) and toy_drawer's drawer fell below 0.5. The price: up to four more second
     passes per held hinged part (red_box +407 s at 120 frames; its hinge kept, every slide
     ≥ 3.9 % worse in data loss)."""
+    slide_hand_ratio: float | None = 2.0
+    """With `hinge_hands`: a held part's slide direction is not tried when the hand's pinch track
+    fits a slide along it (`hand_slide_residual`) worse than this × the chosen hinge (plus
+    `SLIDE_HAND_FLOOR_PX`): a hand that turned a part through a wide arc did not slide it. None:
+    every direction is tried. Measured on the first passes of the robot trials' builds (pinch
+    track RMS, px): bear's waving arm hinge 1.9, slides ≥ 8.3; red_box's lid 3.0 against ≥ 11.5;
+    nerf_gun's slide 0.78 along its axis against 0.66 for the fitted hinge, toy_drawer's drawer
+    0.40–0.61 against 0.33 (a short pull and a slight turn about a far point trace the same
+    path); the frog's two held legs 2.0–12.5 against 2.6 and 6.1. So the bear's and the red box's
+    slide passes (4 each) are skipped and every slide of nerf_gun, toy_drawer and the frog is
+    still tried."""
     slide_min_gain: float = 0.005
     """A slide hypothesis replaces the one chosen so far only when its data loss summed over the
     frames is lower by more than this fraction. Measured (robot trials' builds, every held part

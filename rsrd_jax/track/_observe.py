@@ -227,6 +227,15 @@ class Observer:
     def grid_intrinsics(self, box) -> Intrinsics:
         return box_intrinsics(self.K, box, self.grid_size)
 
+    def pinch_points(self, t: int, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each hand's pinch point on frame `t`: the midpoint of its thumb and index tips in
+        full-frame pixels (H×2, 0 where not seen), and whether both tips were detected (H,)."""
+        H = self.fingertips.num_hands
+        tips, det = self.fingertips(t, frame)
+        tips = np.asarray(tips, np.float64).reshape(H, 2, 2)
+        seen = (np.asarray(det, bool).reshape(H, 2) & np.isfinite(tips).all(-1)).all(-1)
+        return np.where(seen[:, None], np.nan_to_num(tips).mean(1), 0.0), seen
+
     def observe(self, t: int, frame: np.ndarray, box) -> FrameObs:
         """The observations of frame `t` in `box` (x0, y0, side)."""
         g = self.grid_size
@@ -244,14 +253,10 @@ class Observer:
         sel = ring & (weight > 0)
         bg = np.median(feats[sel], axis=0) if sel.any() else np.median(feats.reshape(-1, feats.shape[-1]), axis=0)
         bg_rgb = np.median(rgb[sel], axis=0) if sel.any() else np.median(rgb.reshape(-1, 3), axis=0)
-        # each hand's pinch point (the midpoint of its thumb and index tips, both detected) in
-        # ROI-grid pixels; the anchors are set by the tracker (`track._hands`)
-        H = self.fingertips.num_hands
-        tips, det = self.fingertips(t, frame)
-        tips = np.asarray(tips, np.float64).reshape(H, 2, 2)
-        seen = (np.asarray(det, bool).reshape(H, 2) & np.isfinite(tips).all(-1)).all(-1)
+        # each hand's pinch point in ROI-grid pixels; the anchors are set by the tracker (`track._hands`)
+        pinch, seen = self.pinch_points(t, frame)
         x0, y0, side = box
-        tips_grid = np.where(seen[:, None], (np.nan_to_num(tips).mean(1) - [x0, y0]) * (g / side), 0.0)
+        tips_grid = np.where(seen[:, None], (pinch - [x0, y0]) * (g / side), 0.0)
         return FrameObs(
             intrinsics=self.grid_intrinsics(box),
             features=jnp.asarray(feats),

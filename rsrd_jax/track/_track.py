@@ -18,10 +18,28 @@ from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
-from ._joints import fit_joint_point, hinge_axis, is_slide_candidate, joint_slots, slide_axes, slide_directions, with_joint_slots
+from ._joints import fit_joint_point, hand_hinge_residual, hand_slide_residual, hinge_axis, is_slide_candidate, joint_slots, slide_axes, slide_directions, with_joint_slots
 from ._init import initialize_pose
 from ._hands import HandAnchors, update_hand_anchors, with_hand_anchors
 from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+
+
+SLIDE_HAND_FLOOR_PX = 1.0
+"""Pixels added to `TrackConfig.slide_hand_ratio` × the hinge's residual before a slide hypothesis
+is ruled out by the hand (a tolerance for a pinch track that every hypothesis fits to a pixel)."""
+
+
+class _HandTrack(NamedTuple):
+    """The demonstrator's hands over the video, for joint discovery's hand tests."""
+
+    pinch_uv: np.ndarray
+    """T×H×2 pinch points (full-frame pixels, `Observer.pinch_points`)."""
+    seen: np.ndarray
+    """T×H: both fingertips detected."""
+    T_cam_obj: np.ndarray
+    """(7,) the object's pose in the camera (wxyz_xyz)."""
+    intrinsics: object
+    """The video's camera."""
 
 
 class _Pass(NamedTuple):
@@ -228,8 +246,13 @@ def track_video(
     candidates: list = []
     if use_joints:
         up = model.meta.get("support_plane") if config.support_plane is None else config.support_plane
+        hands = None
+        if use_hands and config.hinge_hands:
+            pinch = [obsr.pinch_points(t, demo.frames[t]) for t in range(demo.num_frames)]
+            hands = _HandTrack(np.stack([u for u, _ in pinch]), np.stack([s for _, s in pinch]),
+                               np.asarray(T_cam_obj.wxyz_xyz, np.float64), K)  # fmt: skip
         tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass,
-                                                           None if up is None else np.asarray(up, np.float64)[:3])  # fmt: skip
+                                                           None if up is None else np.asarray(up, np.float64)[:3], hands)  # fmt: skip
         timings["joint_pass_s"] = time.perf_counter() - t_frames
     # with slide candidates every hypothesis, the joint point's too, starts each frame from a
     # second guess (`slide_velocity`, which says why); a winning joint point is re-run below
@@ -323,11 +346,12 @@ def track_video(
     )
 
 
-def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, config, key, per_frame_pass, up=None):
+def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, config, key, per_frame_pass, up=None,
+                     hands: _HandTrack | None = None):  # fmt: skip
     """`TrackConfig.joints`: first pass on the contact band (weak, saturating ARAP), joint points
     fitted from it, and the TrackModel of the second pass (tied at the joints, pivoting there;
     with `config.hinge_axes` also turning about a fitted axis; `up`: the support plane's normal,
-    a candidate axis)."""
+    a candidate axis; `hands`: the pinch track, whose anchored hands also score the axes)."""
     slots = joint_slots(tm)
     ids = np.asarray(tm.gaussians.part_ids)
     pairs = np.asarray(tm.arap_pairs)
@@ -353,6 +377,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     info = {}
     candidates: list = []
     hinges: list = []
+    hand_ref: dict[int, tuple] = {}  # part -> (hand, held part, other part, frames, chosen hinge's pixel residual)
     slot_gaussian = np.zeros(len(means), bool)
     slot_gaussian[[x for i, j, _ in slots.values() for x in (i, j)]] = True
     for k, (i, j, p) in slots.items():
@@ -371,7 +396,21 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         pw[mine & ~is_slot] = 0.0
         if config.hinge_axes:
             cand = slide_axes(part) if up is None else np.concatenate([slide_axes(part), [up / np.linalg.norm(up)]])
-            a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand, prefer_last=0.0 if up is None else config.hinge_up_tolerance)
+            hand_px = None
+            h = _hand_on(first.anchors, (k, nb)) if hands is not None else None
+            if h is not None:
+                held = int(first.anchors.part[h])
+                other = nb if held == k else k
+                f = np.arange(int(first.anchors.frame[h]), len(T_a))
+                f = f[hands.seen[f, h]]
+                if len(f):
+                    hand_px = hand_hinge_residual(T_a, cents, held, other, X, cents[held] + first.anchors.point[h],
+                                                  hands.T_cam_obj, hands.intrinsics, hands.pinch_uv[:, h], f, cand)  # fmt: skip
+                    info[str(k)]["hinge_hand_px"] = np.round(hand_px, 2).tolist()
+            a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand, prefer_last=0.0 if up is None else config.hinge_up_tolerance,
+                                hand_px=hand_px)  # fmt: skip
+            if hand_px is not None:
+                hand_ref[k] = (h, held, other, f, float(hand_px[int(np.argmax(np.abs(cand @ a)))]))
             hinges.append((k, nb, a, radius))
             info[str(k)].update(hinge_axis=[float(v) for v in a], hinge_candidates=np.round(cand, 4).tolist(),
                                 hinge_rms_mm=np.round(1e3 * rms, 2).tolist())  # fmt: skip
@@ -381,8 +420,24 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         # (its few-mm drift, a static limb) gets no slide hypothesis
         info["slide_candidates_not_held"] = [int(c[0]) for c in candidates if c[0] not in held]
         candidates = [c for c in candidates if c[0] in held]
+    if config.slide_hand_ratio is not None and hand_ref:
+        kept = []
+        for k, nb, radius, dirs, mask, p in candidates:
+            if k not in hand_ref:
+                kept.append((k, nb, radius, dirs, mask, p))
+                continue
+            h, held, other, f, hinge_px = hand_ref[k]
+            px = hand_slide_residual(T_a, cents, held, other, cents[held] + first.anchors.point[h], hands.T_cam_obj,
+                                     hands.intrinsics, hands.pinch_uv[:, h], f, dirs)  # fmt: skip
+            ok = px <= config.slide_hand_ratio * hinge_px + SLIDE_HAND_FLOOR_PX
+            info[str(k)]["slide_hand_px"] = np.round(px, 2).tolist()
+            if ok.any():
+                kept.append((k, nb, radius, dirs[ok], mask, p))
+            else:
+                info.setdefault("slide_candidates_ruled_out_by_hand", []).append(int(k))
+        candidates = kept
     g = eqx.tree_at(lambda x: x.means, tm.gaussians, jnp.asarray(means, jnp.float32))
-    piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(v["point"] is not None for v in info.values()))
+    piv = contact_pivots(means, ids, pairs, pw, cents, P, root_too=P == 2 and any(info[str(k)]["point"] is not None for k in slots))
     tm_b = eqx.tree_at(lambda m: (m.gaussians, m.arap_weight, m.part_pivots), tm,
                        (g, jnp.asarray(pw), jnp.asarray(use * piv, jnp.float32)))  # fmt: skip
     if hinges:
@@ -390,6 +445,14 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
             jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
             jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
     return tm_b, info, key, candidates
+
+
+def _hand_on(anchors, parts) -> int | None:
+    """The first hand anchored on one of `parts`, or None."""
+    for h, p in enumerate(anchors.part):
+        if int(p) in parts:
+            return h
+    return None
 
 
 def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
