@@ -183,7 +183,7 @@ def cmd_track(a: argparse.Namespace) -> int:
         mono = OnnxDepthAnything(a.mono_depth)
     fingertips = StudioFingertips(demo_dir, noise_px=a.hand_noise, seed=a.seed) if a.hands == "studio" else None
     weights = LossWeights(feature=a.w_feature, depth_rank=a.w_depth, arap=a.w_arap, touch=a.w_touch, rgb=a.w_rgb, support=a.w_support,
-                          hand=a.w_hand, motion=a.w_motion)  # fmt: skip
+                          hand=a.w_hand, motion=a.w_motion, hand_depth=a.w_hand_depth)  # fmt: skip
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
                       slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
@@ -432,6 +432,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--hand-noise", type=float, default=0.0, help="with --hands studio: Gaussian pixel noise on the fingertips")
     tr.add_argument("--w-hand", type=float, default=0.01,
                     help="hand term weight: each hand's pinched part point follows its fingertips' midpoint (needs --hands)")  # fmt: skip
+    tr.add_argument("--w-hand-depth", type=float, default=0.0,
+                    help="hand depth term weight: each held part's surface at the pinch point lies at the hand's depth, read "
+                         "off the table with the mono-depth's order (needs --hands, --mono-depth and a model with a support "
+                         "plane; rsrd-jax demo: 0.2)")  # fmt: skip
     tr.add_argument("--w-motion", type=float, default=0.0,
                     help="per-frame motion prior weight: squared pose update away from the extrapolated guess (rsrd-jax demo: 0.1)")  # fmt: skip
     tr.add_argument("--roi-size", type=int, default=224, help="ROI crop side in pixels")

@@ -79,6 +79,14 @@ class PipelineConfig:
     midpoint of its thumb and index tips."""
     track_hand_noise_px: float = 0.0
     """Gaussian pixel noise on the studio's fingertips (a detector's error)."""
+    track_hand_depth: float = 0.2
+    """Tracking's hand depth term (`LossWeights.hand_depth`; needs the hand term, the mono-depth
+    oracle and the model's support plane): the held part's surface at the pinch point lies at the
+    depth the mono-depth gives the hand, read off the table around the object. The studio
+    usb_plug's plug, lifted towards the camera under the hand, was tracked back along its
+    viewing ray (38.6 mm; 34.6 mm with RSRD's ARAP weight for separable objects,
+    `TrackConfig.separable_arap`); with both 9.9 mm (robot trials' build). Stapler, red_box and
+    led_light unchanged within 0.2 mm."""
     track_motion: float = 0.1
     """Tracking's per-frame motion prior (`LossWeights.motion`; RSRD has none, the library
     default is 0): a part the data say little about stays where the extrapolation put it."""
@@ -125,7 +133,7 @@ class PipelineConfig:
 
         return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
                            hinge_axes=self.track_hinge_axes, lr_start=self.track_lr_start,
-                           weights=LossWeights(motion=self.track_motion))  # fmt: skip
+                           weights=LossWeights(motion=self.track_motion, hand_depth=self.track_hand_depth if self.track_hands else 0.0))  # fmt: skip
 
 
 def studio_hands_in_object_frame(studio_dir: Path, T_cam_obj: np.ndarray) -> np.ndarray:

@@ -639,12 +639,100 @@ def test_hand_loss_is_zero_on_the_fingertips_barron_off_them_and_its_gradient_ma
     assert float(jnp.abs(g_all[0]).max()) == 0.0 < float(jnp.abs(g_all[1]).max())
 
 
+def test_hand_depth_loss_places_the_held_surface_at_the_hands_depth():
+    """Zero when each weighted hand's surface point lies at its depth (camera z computed in
+    numpy); Cauchy's closed form of the depth offsets; unweighted hands add nothing; only the
+    held part gets a gradient, equal to central finite differences."""
+    from rsrd_jax.track import hand_depth_loss
+
+    _, T_co, T_op = _hand_scene()
+    parts = jnp.array([1, 1, 0])
+    points = np.array([[0.01, -0.02, 0.003], [-0.01, 0.015, 0.0], [0.0, 0.0, 0.02]])
+    M_co, M_op = np.asarray(T_co.as_matrix(), np.float64), np.asarray(T_op.as_matrix(), np.float64)[[1, 1, 0]]
+    z = ((np.einsum("kij,kj->ki", M_op[:, :3, :3], points) + M_op[:, :3, 3]) @ M_co[:3, :3].T + M_co[:3, 3])[:, 2]
+    w, c = jnp.array([1.0, 1.0, 0.0]), 0.01
+    pts = jnp.asarray(points, jnp.float32)
+    assert float(hand_depth_loss(T_op, T_co, parts, pts, jnp.asarray(z, jnp.float32), w, c)) == pytest.approx(0.0, abs=1e-6)
+    off = z + np.array([0.02, -0.005, 0.3])  # the third is unweighted
+    want = np.mean(np.log(0.5 * (np.array([0.02, 0.005]) / c) ** 2 + 1))
+    assert float(hand_depth_loss(T_op, T_co, parts, pts, jnp.asarray(off, jnp.float32), w, c)) == pytest.approx(want, rel=1e-3)
+
+    def f(d):
+        return hand_depth_loss(T_op @ jaxlie.SE3.exp(d), T_co, parts, pts, jnp.asarray(off, jnp.float32), w, c)
+
+    d0 = jnp.zeros((2, 6)).at[1].set(jnp.array([0.002, -0.001, 0.001, 0.02, 0.01, -0.03]))
+    g = np.asarray(jax.grad(f)(d0))
+    assert float(np.abs(g[0]).max()) == 0.0
+    fd = np.array([(float(f(d0.at[1, i].add(1e-4))) - float(f(d0.at[1, i].add(-1e-4)))) / 2e-4 for i in range(6)])
+    np.testing.assert_allclose(g[1], fd, rtol=2e-2, atol=2e-2 * np.abs(fd).max())
+
+
+def _table_view():
+    """A camera 0.35 m from a table point, looking down at 40°: (intrinsics, T_cam_obj, the
+    table plane (n, d) in the object frame, the camera's eye in the object frame)."""
+    from rsrd_jax.geometry import Intrinsics, look_at
+
+    eye = np.array([0.0, -0.27, 0.225])
+    return Intrinsics.create(250.0, 250.0, 80.0, 60.0, 160, 120), look_at(eye, np.zeros(3)), np.array([0.0, 0.0, 1.0, 0.0]), eye
+
+
+def test_plane_depth_meets_each_ray_on_the_table_and_nothing_above_the_horizon():
+    """Brute force: the point at each pixel's depth along its ray lies on the table (z = 0 in the
+    object frame); a camera looking level sees no table above its horizon (NaN)."""
+    from rsrd_jax.geometry import Intrinsics, look_at
+    from rsrd_jax.track._observe import plane_depth
+
+    K, T_co, plane, _ = _table_view()
+    z = plane_depth(K, T_co, plane)
+    assert z.shape == (120, 160) and np.isfinite(z).all()
+    M_oc = np.linalg.inv(np.asarray(T_co.as_matrix(), np.float64))
+    for v, u in [(0, 0), (60, 80), (119, 159), (30, 140)]:
+        x = np.array([(u + 0.5 - 80.0) / 250.0, (v + 0.5 - 60.0) / 250.0, 1.0]) * z[v, u]
+        assert abs((M_oc[:3, :3] @ x + M_oc[:3, 3])[2]) < 1e-9
+    level = plane_depth(K, look_at(np.array([0.0, -0.3, 0.05]), np.array([0.0, 0.3, 0.05])), plane)
+    assert np.isnan(level[:60]).all() and np.isfinite(level[61:]).all()
+
+
+def test_hand_depths_reads_the_hands_depth_off_the_table(rng):
+    """A hand 40 mm above the table, in front of it; the mono-depth is the true depth through an
+    unknown monotone transform with 1 % noise (the studio oracle's model). The depth read off the
+    table is within 4 mm of the true one; unknown where the occluder covers the pinch point, and
+    for a hand nearer than any table pixel in view."""
+    from types import SimpleNamespace
+
+    from rsrd_jax.track._observe import Observer, plane_depth
+
+    K, T_co, plane, eye = _table_view()
+    table = plane_depth(K, T_co, plane)
+    hand_obj = np.array([0.0, -0.02, 0.04])
+    hand_cam = np.asarray(T_co @ jnp.asarray(hand_obj, jnp.float32), np.float64)
+    u, v = 250.0 * hand_cam[0] / hand_cam[2] + 80.0, 250.0 * hand_cam[1] / hand_cam[2] + 60.0
+    depth = table.copy()
+    depth[int(v) - 2 : int(v) + 3, int(u) - 2 : int(u) + 3] = hand_cam[2]  # the hand's pixels
+    mono = 0.7 * depth**1.6 * np.exp(rng.normal(0.0, 0.01, depth.shape))
+    obsr = SimpleNamespace(table_depth=table, table_pairs=2000)
+    box = (int(u) + 20, int(v) + 10, 30)  # the object's ROI, beside the hand
+    est, known = Observer.hand_depths(obsr, 0, np.array([[u, v], [u, v]]), np.array([True, False]), mono, np.zeros_like(mono, bool), box)
+    assert known.tolist() == [1.0, 0.0] and abs(est[0] - hand_cam[2]) < 0.004, (est, hand_cam[2])
+    occluded = np.zeros_like(mono, bool)
+    occluded[int(v) - 3 : int(v) + 4, int(u) - 3 : int(u) + 4] = True
+    _, known = Observer.hand_depths(obsr, 0, np.array([[u, v]]), np.array([True]), mono, occluded, box)
+    assert known.tolist() == [0.0]
+    near = mono.copy()
+    near[int(v) - 2 : int(v) + 3, int(u) - 2 : int(u) + 3] = 1e-6  # nearer than the whole table
+    _, known = Observer.hand_depths(obsr, 0, np.array([[u, v]]), np.array([True]), near, np.zeros_like(mono, bool), box)
+    assert known.tolist() == [0.0]
+
+
 def test_hand_anchor_picks_the_part_under_the_fingertip_and_its_point(rng):
     """Anchoring on a synthetic two-part model: a fingertip over part 1 only is anchored to part
     1 at the opacity-weighted mean of its Gaussians near the ray (brute force); a fingertip that
     projects onto nothing, or is not detected, stays unanchored; an anchored fingertip keeps its
-    anchor on later frames."""
+    anchor on later frames. Its surface point is the mean of the nearest quarter of those
+    Gaussians; its camera depth and the hand depth readings shifted by a calibration offset."""
     from types import SimpleNamespace
+
+    import equinox as eqx
 
     from rsrd_jax.geometry import project_points
     from rsrd_jax.splat import Gaussians, rest_part_poses
@@ -667,7 +755,8 @@ def test_hand_anchor_picks_the_part_under_the_fingertip_and_its_point(rng):
     z = jnp.zeros(3)
     obs = FrameObs(intrinsics=K, features=jnp.zeros((4, 4, 2)), weight=jnp.ones((4, 4)), rgb=jnp.zeros((4, 4, 3)), mono=jnp.zeros((4, 4)),
                    bg_feature=jnp.zeros(2), bg_rgb=jnp.zeros(3), hand_uv=jnp.asarray(uv, jnp.float32), hand_seen=jnp.array([1.0, 1.0, 0.0]),
-                   hand_part=jnp.zeros(3, jnp.int32), hand_point=jnp.zeros((3, 3)), hand_weight=z)  # fmt: skip
+                   hand_part=jnp.zeros(3, jnp.int32), hand_point=jnp.zeros((3, 3)), hand_weight=z, hand_surface=jnp.zeros((3, 3)),
+                   hand_depth=z, hand_depth_seen=z)  # fmt: skip
     r = 6.0
     anchors = update_hand_anchors(HandAnchors.empty(3), tm, T_rest, T_co, obs, t=2, radius_cells=r)
     assert anchors.part.tolist() == [1, -1, -1] and anchors.frame.tolist() == [2, -1, -1]
@@ -676,9 +765,23 @@ def test_hand_anchor_picks_the_part_under_the_fingertip_and_its_point(rng):
     op = 1 / (1 + np.exp(-opl))
     want = np.average(means[near] - cents[1], axis=0, weights=op[near])
     np.testing.assert_allclose(anchors.point[0], want, atol=1e-5)
+    # the visible surface there: the nearest quarter of those Gaussians (camera depth)
+    zc = np.asarray(T_co @ jnp.asarray(means, jnp.float32))[:, 2]
+    front = near & (zc <= np.quantile(zc[near], 0.25))
+    np.testing.assert_allclose(anchors.surface[0], np.average(means[front] - cents[1], axis=0, weights=op[front]), atol=1e-5)
     # the anchored fingertip is weighted in the hand term; the others are not
     o2 = with_hand_anchors(obs, anchors)
     assert np.asarray(o2.hand_weight).tolist() == [1.0, 0.0, 0.0] and int(o2.hand_part[0]) == 1
+    np.testing.assert_allclose(np.asarray(o2.hand_surface[0]), anchors.surface[0], atol=1e-6)
+    # the surface point's camera depth (the hand depth term's calibration) and the shifted readings
+    from rsrd_jax.track._hands import surface_depths, with_hand_depth_offset
+
+    zs = surface_depths(tm, T_rest, T_co, anchors)
+    assert np.isnan(zs[1:]).all() and zs[0] == pytest.approx(float((T_co @ jnp.asarray(anchors.surface[0] + cents[1], jnp.float32))[2]), abs=1e-6)
+    read = eqx.tree_at(lambda o: (o.hand_depth, o.hand_depth_seen), o2, (jnp.array([0.3, 0.4, 0.5]), jnp.ones(3)))
+    shifted = with_hand_depth_offset(read, np.array([0.01, np.nan, -0.02]))
+    np.testing.assert_allclose(np.asarray(shifted.hand_depth)[[0, 2]], [0.31, 0.48], atol=1e-6)
+    assert np.asarray(shifted.hand_depth_seen).tolist() == [1.0, 0.0, 1.0]
     # a later frame does not move an existing anchor
     moved = FrameObs(**{**{k: getattr(obs, k) for k in obs.__dataclass_fields__}, "hand_uv": jnp.asarray(uv + 30.0, jnp.float32)})
     again = update_hand_anchors(anchors, tm, T_rest, T_co, moved, t=5, radius_cells=r)

@@ -23,6 +23,7 @@ from ._losses import (
     barron_loss as barron_loss,
     depth_ranking_loss as depth_ranking_loss,
     feature_loss as feature_loss,
+    hand_depth_loss as hand_depth_loss,
     hand_loss as hand_loss,
     pose_smoothness as pose_smoothness,
     prismatic_loss as prismatic_loss,

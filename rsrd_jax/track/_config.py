@@ -38,7 +38,15 @@ class LossWeights(eqx.Module):
     """Hand term (`hand_loss`): the point of the part each hand pinches projects onto the midpoint
     of its detected thumb and index tips (needs a `FingertipSource`; not in RSRD, which uses
     hands only to pick the parts to grasp)."""
-
+    hand_depth: float = 0.0
+    """Hand depth term (`hand_depth_loss`): each anchored hand's pinched point lies at the depth
+    the mono-depth gives the hand (`Observer.hand_depths`): the table around the object has a
+    known metric depth along each pixel's ray (the support plane, `TrackConfig.support_plane` or
+    the model's, seen from the object's pose), and the hand's depth is where the table's
+    mono-depth order against the hand's pinch point flips (only the order of the mono-depth is
+    used, as by the ranking term). The 2D hand term leaves the held point free along its
+    viewing ray. Needs a fingertip source, a mono-depth source and a support plane; 0 disables
+    it. Not in RSRD."""
 
     motion: float = 0.0
     """Per-frame motion prior: the mean over parts of the squared tangent update away from the
@@ -186,12 +194,31 @@ class TrackConfig(eqx.Module):
     discovery, lr 1e-2, the robot trials' builds): led_light's lid 29.7 → 10.9 mm, sunglasses'
     folding arm 59.8 → 45.7 mm, but red_box's lid 5.5 → 10.4 mm and frog's mean 3.8 → 4.2 mm
     (a lower frame loss is not always the truer pose); off by default."""
+    table_pairs: int = 2000
+    """Table pixels a hand's depth is read off per frame (`LossWeights.hand_depth`)."""
+    hand_depth_calibration: int = 5
+    """The hand depth term acts on a hand once its depth read off the table was known on this
+    many frames after its anchoring: the median offset between the tracked surface point's depth
+    and that reading on them shifts the later readings (the pinch pixel sees the part's surface
+    or a finger, not the anchored point, a bias of up to a finger's or the part's thickness;
+    without the shift the stapler's held arm went from 1.8 to 3.4 mm and the red box's lid from
+    2.0 to 3.4 mm; with it 1.8 and 2.0 mm, and the usb_plug's plug 9.9 mm instead of 11.6)."""
+    hand_depth_scale: float = 0.01
+    """Cauchy scale of the hand depth term, metres (studio usb_plug before the calibration, ARAP
+    weight 0: plug 10.3 mm at 0.01, 10.6 mm at 0.005)."""
     rank_pairs: int = 4096
     """Random pixel pairs of the depth ranking loss per step."""
     alpha_mask: float = 0.8
     """Rendered alpha above which a pixel counts as object (ranking mask, per-part residuals)."""
     arap_alpha: float | None = None
     """Barron α of the ARAP loss; None: 1.0 for attached parts, 0.1 for separable objects."""
+    separable_arap: float | None = 2e-4
+    """ARAP weight for separable objects (None: `weights.arap`): RSRD's effective weight (0.2 ×
+    its 0.001 per pair). At `weights.arap` (0.2) the pairs between the studio usb_plug's plug and
+    its socket held the plug in place while the hand pulled it out (Barron α 0.1 barely
+    saturates: 41 against the hand term's 0.3 in gradient per metre, 20 mm out); with 2e-4 the
+    hand pulls it out (34.6 mm: along the wrong viewing depth), and with the hand depth term too
+    the plug is tracked at 9.9 mm instead of 38.6 mm (robot trials' build)."""
     arap_scale: float = 0.001
     """Barron scale c of the ARAP loss, metres."""
     support_plane: tuple[float, float, float, float] | None = None

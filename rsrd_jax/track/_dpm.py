@@ -21,7 +21,7 @@ from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
 from ..splat import Gaussians, RenderConfig, apply_part_poses, render
 from ._lod import merge_gaussians
-from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_loss, pose_smoothness, prismatic_loss, revolute_loss, support_loss, touch_loss
+from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_depth_loss, hand_loss, pose_smoothness, prismatic_loss, revolute_loss, support_loss, touch_loss
 
 _trace_counts = {"frame": 0, "smooth": 0}
 
@@ -263,6 +263,14 @@ class FrameObs(eqx.Module):
     """The pinched point, in that part's frame (metres from its rest centroid)."""
     hand_weight: Float[Array, " k"]
     """Weight of each hand in the hand term: detected and anchored (0 otherwise)."""
+    hand_surface: Float[Array, "k 3"]
+    """The held part's visible surface at the pinch point, in that part's frame (metres;
+    `HandAnchors.surface`), which the hand depth term places."""
+    hand_depth: Float[Array, " k"]
+    """Each hand's pinch point depth (camera z, m) read off the table (`Observer.hand_depths`),
+    for the hand depth term."""
+    hand_depth_seen: Float[Array, " k"]
+    """1 where that depth is known (the hand seen, the table's depths bracket it), else 0."""
 
 
 class Weights(eqx.Module):
@@ -282,6 +290,9 @@ class Weights(eqx.Module):
     hand_scale: Float[Array, ""]
     """Barron scale of the hand term, ROI-grid pixels (feature cells)."""
     motion: Float[Array, ""]
+    hand_depth: Float[Array, ""]
+    hand_depth_scale: Float[Array, ""]
+    """Cauchy scale of the hand depth term, metres."""
 
     @staticmethod
     def from_config(cfg, separable: bool, object_radius: float) -> Weights:
@@ -290,8 +301,10 @@ class Weights(eqx.Module):
         w = cfg.weights
         ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
         scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
-        return Weights(f(w.feature), f(w.depth_rank), f(w.arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale,
-                       f(w.support), f(w.hand), f(cfg.hand_alpha), f(cfg.hand_scale_cells), f(w.motion))  # fmt: skip
+        arap = w.arap if not separable or cfg.separable_arap is None else cfg.separable_arap
+        return Weights(f(w.feature), f(w.depth_rank), f(arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale,
+                       f(w.support), f(w.hand), f(cfg.hand_alpha), f(cfg.hand_scale_cells), f(w.motion), f(w.hand_depth),
+                       f(cfg.hand_depth_scale))  # fmt: skip
 
 
 def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
@@ -330,14 +343,16 @@ def frame_objective(
     l_support = support_loss(r.means, tm.gaussians.means, tm.support_plane, w.arap_scale)
     l_hand = hand_loss(T_obj_part, T_cam_obj, obs.intrinsics, obs.hand_part, obs.hand_point, obs.hand_uv, obs.hand_weight,
                        w.hand_alpha, w.hand_scale)  # fmt: skip
+    l_hand_depth = hand_depth_loss(T_obj_part, T_cam_obj, obs.hand_part, obs.hand_surface, obs.hand_depth,
+                                   obs.hand_weight * obs.hand_depth_seen, w.hand_depth_scale)  # fmt: skip
     total = (w.feature * l_feat + w.rgb * l_rgb + w.depth_rank * l_rank + w.arap * (l_arap + l_slide + l_hinge) + w.touch * l_touch
-             + w.support * l_support + w.hand * l_hand)
+             + w.support * l_support + w.hand * l_hand + w.hand_depth * l_hand_depth)
     # per-part residual: feature error weighted by each part's rendered share of the pixel
     err = jnp.sqrt(jnp.sum((r.features - obs.features) ** 2, axis=-1) + 1e-12) * obs.weight
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "hinge": l_hinge, "support": l_support, "hand": l_hand, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "hinge": l_hinge, "support": l_support, "hand": l_hand, "hand_depth": l_hand_depth, "part_residual": part_res, "part_visible": part_vis}
     return total, aux
 
 

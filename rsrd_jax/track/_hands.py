@@ -40,10 +40,15 @@ class HandAnchors:
     """(k, 3) held point in the part's frame, metres."""
     frame: np.ndarray
     """(k,) frame on which each hand was anchored (−1: not anchored)."""
+    surface: np.ndarray | None = None
+    """(k, 3) the held part's visible surface at the pinch point, in the part's frame (metres):
+    the nearest quarter of the anchoring Gaussians. The hand depth term (`hand_depth_loss`)
+    places it at the depth the mono-depth gives the pinch point, which sees the part's surface
+    between the fingers, not the held point inside it. None: `point`."""
 
     @staticmethod
     def empty(k: int) -> HandAnchors:
-        return HandAnchors(-np.ones(k, np.int64), np.zeros((k, 3)), -np.ones(k, np.int64))
+        return HandAnchors(-np.ones(k, np.int64), np.zeros((k, 3)), -np.ones(k, np.int64), np.zeros((k, 3)))
 
     @property
     def anchored(self) -> np.ndarray:
@@ -61,9 +66,10 @@ def with_hand_anchors(obs: FrameObs, anchors: HandAnchors) -> FrameObs:
     """`obs` with the anchors' parts and points and the hand term's weights (detected in this
     frame and anchored)."""
     a = anchors.anchored
-    return eqx.tree_at(lambda o: (o.hand_part, o.hand_point, o.hand_weight), obs,
+    surface = anchors.point if anchors.surface is None else anchors.surface
+    return eqx.tree_at(lambda o: (o.hand_part, o.hand_point, o.hand_surface, o.hand_weight), obs,
                        (jnp.asarray(np.where(a, anchors.part, 0), jnp.int32), jnp.asarray(anchors.point, jnp.float32),
-                        jnp.asarray(np.asarray(obs.hand_seen) * a, jnp.float32)))  # fmt: skip
+                        jnp.asarray(surface, jnp.float32), jnp.asarray(np.asarray(obs.hand_seen) * a, jnp.float32)))  # fmt: skip
 
 
 def update_hand_anchors(
@@ -90,7 +96,8 @@ def update_hand_anchors(
     op = np.asarray(jax.nn.sigmoid(tm.gaussians.opacity_logits), np.float64)
     local = np.asarray(tm.gaussians.means, np.float64) - np.asarray(tm.part_centroids, np.float64)[ids]
     tips = np.asarray(obs.hand_uv, np.float64)
-    out = HandAnchors(anchors.part.copy(), anchors.point.copy(), anchors.frame.copy())
+    surface = anchors.point.copy() if anchors.surface is None else anchors.surface.copy()
+    out = HandAnchors(anchors.part.copy(), anchors.point.copy(), anchors.frame.copy(), surface)
     for k in np.flatnonzero(todo):
         near = (np.linalg.norm(uv - tips[k], axis=1) < radius_cells) & (z > 0) & (op > 0.05)
         if near.sum() < min_gaussians:
@@ -100,5 +107,27 @@ def update_hand_anchors(
         sel = near & (ids == p)
         out.part[k] = p
         out.point[k] = np.average(local[sel], axis=0, weights=op[sel])
+        front = sel & (z <= np.quantile(z[sel], 0.25))
+        out.surface[k] = np.average(local[front], axis=0, weights=op[front])
         out.frame[k] = t
     return out
+
+
+def surface_depths(tm, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, anchors: HandAnchors) -> np.ndarray:
+    """(k,) camera depth (m) of each anchored hand's surface point (`HandAnchors.surface`) at the
+    part poses `T_obj_part`; NaN for hands not anchored."""
+    surface = anchors.point if anchors.surface is None else anchors.surface
+    parts = np.where(anchors.anchored, anchors.part, 0)
+    T = jaxlie.SE3(jnp.asarray(T_obj_part.wxyz_xyz)[parts])
+    z = np.asarray((T_cam_obj @ (T @ jnp.asarray(surface, jnp.float32)))[:, 2], np.float64)
+    return np.where(anchors.anchored, z, np.nan)
+
+
+def with_hand_depth_offset(obs: FrameObs, offset: np.ndarray) -> FrameObs:
+    """`obs` with each hand's depth read off the table (`Observer.hand_depths`) shifted by that
+    hand's `offset` (m; see `track_video`'s hand depth calibration), and unknown where the offset
+    is (NaN)."""
+    known = np.isfinite(offset)
+    return eqx.tree_at(lambda o: (o.hand_depth, o.hand_depth_seen), obs,
+                       (obs.hand_depth + jnp.asarray(np.where(known, offset, 0.0), jnp.float32),
+                        obs.hand_depth_seen * jnp.asarray(known, jnp.float32)))  # fmt: skip

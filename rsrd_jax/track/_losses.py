@@ -168,6 +168,11 @@ def revolute_loss(
     return jnp.sum(weight * per) / jnp.maximum(jnp.sum(weight), 1.0)
 
 
+def _held_points_in_camera(T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, parts: Int[Array, " k"], points: Float[Array, "k 3"]) -> Float[Array, "k 3"]:
+    """Each hand's pinched point (`points[k]` in part `parts[k]`'s frame) in the camera frame."""
+    return T_cam_obj @ (jaxlie.SE3(T_obj_part.wxyz_xyz[parts]) @ points)
+
+
 def hand_loss(
     T_obj_part: jaxlie.SE3,
     T_cam_obj: jaxlie.SE3,
@@ -184,13 +189,30 @@ def hand_loss(
     `intrinsics`). Barron's loss of the reprojection distance at `scale` pixels, weighted mean
     over the hands (`weight` 0: not detected or not anchored). Only the image position is used:
     a monocular detector's hand depth is not trusted."""
-    T = jaxlie.SE3(T_obj_part.wxyz_xyz[parts])
-    pc = T_cam_obj @ (T @ points)
+    pc = _held_points_in_camera(T_obj_part, T_cam_obj, parts, points)
     ok = pc[:, 2] > 1e-3  # behind the camera: no pull
     pred, _ = project_points(intrinsics, jnp.where(ok[:, None], pc, jnp.array([0.0, 0.0, 1.0])))
     r = jnp.linalg.norm(pred - uv + 1e-9, axis=-1)
     w = weight * ok
     return jnp.sum(w * barron_loss(r, alpha, scale)) / jnp.maximum(jnp.sum(w), 1.0)
+
+
+def hand_depth_loss(
+    T_obj_part: jaxlie.SE3,
+    T_cam_obj: jaxlie.SE3,
+    parts: Int[Array, " k"],
+    points: Float[Array, "k 3"],
+    depth: Float[Array, " k"],
+    weight: Float[Array, " k"],
+    scale: Float[Array, ""] | float,
+) -> Float[Array, ""]:
+    """Hand depth term: the held part's surface at each hand k's pinch point (`points[k]` of part
+    `parts[k]`, part frame) lies at the depth `depth[k]` (camera z, m) that the mono-depth gives
+    the pinch point
+    (`Observer.hand_depths`): Cauchy loss of the depth difference at `scale` metres, weighted
+    mean over the hands (`weight` 0: unknown depth, not anchored or not seen)."""
+    z = _held_points_in_camera(T_obj_part, T_cam_obj, parts, points)[:, 2]
+    return jnp.sum(weight * barron_loss(z - depth, 0.0, scale)) / jnp.maximum(jnp.sum(weight), 1.0)
 
 
 def pose_smoothness(T: jaxlie.SE3, valid: Bool[Array, " t"] | None = None) -> Float[Array, ""]:

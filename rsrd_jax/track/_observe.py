@@ -210,8 +210,13 @@ class Observer:
 
     def __init__(self, extractor, pca, intrinsics: Intrinsics, roi_size: int,
                  occluder: OccluderSource | None = None, mono: MonoDepthSource | None = None,
-                 fingertips: FingertipSource | None = None):  # fmt: skip
+                 fingertips: FingertipSource | None = None, table_pairs: int = 2000):  # fmt: skip
         self.extractor, self.pca, self.K = extractor, pca, intrinsics
+        self.table_pairs = int(table_pairs)
+        self.table_depth: np.ndarray | None = None
+        """H×W metric depth (camera z) of the support plane along each pixel's ray, NaN where the
+        ray does not meet it (`plane_depth`); set by the tracker once the object's pose is known.
+        None: no hand depths (`hand_depths`)."""
         self.roi = int(roi_size)
         self.grid = tuple(int(x) for x in extractor.output_shape(self.roi, self.roi))
         if self.grid[0] != self.grid[1]:
@@ -243,10 +248,12 @@ class Observer:
         fmap = self.extractor(roi_img)
         feats = np.asarray(self.pca.project(fmap.features), np.float32).reshape(g, g, -1)
         inside = crop(np.ones(frame.shape[:2], np.float32), box, g, cv2.INTER_AREA) > 0.99
-        occ = crop(self.occluder(t, frame).astype(np.float32), box, g, cv2.INTER_AREA) > 0.01
+        occ_full = self.occluder(t, frame)
+        occ = crop(occ_full.astype(np.float32), box, g, cv2.INTER_AREA) > 0.01
         weight = (inside & ~occ).astype(np.float32)
         rgb = crop(frame, box, g, cv2.INTER_AREA).astype(np.float32) / 255.0
-        mono = crop(self.mono(t, frame).astype(np.float32), box, g, cv2.INTER_AREA)
+        mono_full = self.mono(t, frame)
+        mono = crop(mono_full.astype(np.float32), box, g, cv2.INTER_AREA)
         # background feature: median of the usable cells on the ROI's outer ring
         ring = np.zeros((g, g), bool)
         ring[:2], ring[-2:], ring[:, :2], ring[:, -2:] = True, True, True, True
@@ -257,6 +264,7 @@ class Observer:
         pinch, seen = self.pinch_points(t, frame)
         x0, y0, side = box
         tips_grid = np.where(seen[:, None], (pinch - [x0, y0]) * (g / side), 0.0)
+        hand_depth, hand_depth_seen = self.hand_depths(t, pinch, seen, mono_full, occ_full, box)
         return FrameObs(
             intrinsics=self.grid_intrinsics(box),
             features=jnp.asarray(feats),
@@ -269,5 +277,74 @@ class Observer:
             hand_seen=jnp.asarray(seen, jnp.float32),
             hand_part=jnp.zeros(len(seen), jnp.int32),
             hand_point=jnp.zeros((len(seen), 3), jnp.float32),
+            hand_surface=jnp.zeros((len(seen), 3), jnp.float32),
             hand_weight=jnp.zeros(len(seen), jnp.float32),
+            hand_depth=jnp.asarray(hand_depth),
+            hand_depth_seen=jnp.asarray(hand_depth_seen),
         )
+
+    def hand_depths(self, t: int, pinch: np.ndarray, seen: np.ndarray, mono: np.ndarray, occluded: np.ndarray,
+                    box) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """Each seen hand's depth (camera z, m) on frame `t`, read off the table: `table_pairs`
+        table pixels (the support plane seen, not occluded, outside the ROI `box` where the object
+        is) have a metric depth (`table_depth`) and a mono-depth; the hand's depth is the
+        threshold that best splits those the mono-depth puts nearer than the hand's pinch point
+        (median of its 3×3 pixels) from those it puts farther (fewest pixels on the wrong side).
+        Only the mono-depth's order is used. Unknown (seen 0) without `table_depth`, where the
+        occluder mask covers the pinch point (the mono-depth there sees the hand, not the held
+        part: on the studio usb_plug the brick's pinch point, behind the demonstrator's arm, read
+        80 mm too near), when fewer
+        than 5 % of the pixels lie on either side (the hand is outside the table's depth range)
+        or when more than 20 % of them are on the wrong side at the best threshold.
+
+        Returns:
+            (H,) depths (0 where unknown), (H,) 1 where known.
+        """
+        H = len(seen)
+        depth, known = np.zeros(H, np.float32), np.zeros(H, np.float32)
+        if self.table_depth is None or not seen.any():
+            return depth, known
+        valid = np.isfinite(self.table_depth) & ~np.asarray(occluded, bool)
+        x0, y0, side = (int(round(v)) for v in box)
+        valid[max(y0, 0) : max(y0 + side, 0), max(x0, 0) : max(x0 + side, 0)] = False
+        idx = np.flatnonzero(valid)
+        if len(idx) < 20:
+            return depth, known
+        pick = np.random.default_rng(t).choice(idx, min(self.table_pairs, len(idx)), replace=False)
+        z = self.table_depth.reshape(-1)[pick]
+        order = np.argsort(z)
+        z = z[order]
+        m = np.asarray(mono, np.float64)
+        m_table = m.reshape(-1)[pick][order]
+        h_img, w_img = m.shape
+        occ = np.asarray(occluded, bool)
+        for k in np.flatnonzero(seen):
+            u, v = int(np.clip(pinch[k, 0], 0, w_img - 1)), int(np.clip(pinch[k, 1], 0, h_img - 1))
+            win = (slice(max(v - 1, 0), v + 2), slice(max(u - 1, 0), u + 2))
+            if occ[win].mean() > 0.5:  # the hand itself hides the held part there
+                continue
+            farther = m_table > float(np.median(m[win]))
+            # wrong side of a threshold after the i nearest pixels: farther ones before it, nearer ones after
+            wrong = np.concatenate([[0], np.cumsum(farther)]) + np.concatenate([[0], np.cumsum((~farther)[::-1])])[::-1]
+            i = int(np.argmin(wrong))
+            if min(i, len(z) - i) < 0.05 * len(z) or wrong[i] > 0.2 * len(z):
+                continue
+            depth[k], known[k] = 0.5 * (z[i - 1] + z[i]), 1.0
+        return depth, known
+
+
+def plane_depth(intrinsics: Intrinsics, T_cam_obj, plane) -> np.ndarray:
+    """H×W: the camera-frame depth z at which each pixel's ray (pixel centres at +0.5) meets the
+    plane n·x = d (object frame, `plane` = (n, d)) seen from `T_cam_obj` (jaxlie SE3); NaN where
+    it does not meet it in front of the camera."""
+    K = intrinsics
+    M = np.asarray(T_cam_obj.as_matrix(), np.float64)
+    n_o, d_o = np.asarray(plane[:3], np.float64), float(plane[3])
+    n_c = M[:3, :3] @ n_o
+    d_c = d_o + n_c @ M[:3, 3]
+    u, v = np.meshgrid(np.arange(K.width) + 0.5, np.arange(K.height) + 0.5)
+    rays = np.stack([(u - float(K.cx)) / float(K.fx), (v - float(K.cy)) / float(K.fy), np.ones_like(u)], -1)
+    den = rays @ n_c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = d_c / den
+    return np.where(np.isfinite(z) & (z > 0), z, np.nan)

@@ -20,8 +20,8 @@ from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
 from ._joints import fit_joint_point, hand_hinge_residual, hand_slide_residual, hinge_axis, is_slide_candidate, joint_slots, slide_axes, slide_directions, with_joint_slots
 from ._init import initialize_pose
-from ._hands import HandAnchors, update_hand_anchors, with_hand_anchors
-from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, roi_box
+from ._hands import HandAnchors, surface_depths, update_hand_anchors, with_hand_anchors, with_hand_depth_offset
+from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, plane_depth, roi_box
 
 
 SLIDE_HAND_FLOOR_PX = 1.0
@@ -52,7 +52,7 @@ class _Pass(NamedTuple):
     loss: list
     """Final loss per frame."""
     data_loss: list
-    """Data terms (feature, rgb, rank) of the final loss per frame: hypotheses compare these."""
+    """Data terms (feature, rgb, rank, hand, hand depth) of the final loss per frame: hypotheses compare these."""
     logged: list
     """Deferred rerun log entries (emitted for the pass that is kept)."""
     switched: int
@@ -166,7 +166,7 @@ def track_video(
         separable = bool(model.meta.get("separable", False))
     K = demo.intrinsics
     t_start = time.perf_counter()
-    obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono, fingertips)
+    obsr = Observer(extractor, model.pca, K, config.roi_size, occluder, mono, fingertips, config.table_pairs)
     voxel = _lod_voxel(model, config, obsr.grid_size)
     use_joints = config.joints and not separable
     neighbour: dict[int, int] = {}
@@ -200,6 +200,10 @@ def track_video(
     key = jax.random.key(config.seed)
 
     use_hands = fingertips is not None and config.weights.hand > 0
+    table = config.support_plane if config.support_plane is not None else model.meta.get("support_plane")
+    if use_hands and config.weights.hand_depth > 0 and mono is not None and table is not None:
+        # the hand depth term's table: the support plane's depth along every pixel's ray
+        obsr.table_depth = plane_depth(K, T_cam_obj, np.asarray(table, np.float64))
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
 
     def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
@@ -208,6 +212,12 @@ def track_video(
         switched = 0  # frames where the second start won
         solve_s: list[float] = []
         anchors = HandAnchors.empty(obsr.fingertips.num_hands)
+        # the hand depth term's calibration: each hand's depth read off the table is biased (the
+        # pinch pixel sees the part's surface or a finger, not the anchored point), so the term
+        # uses it shifted by the median offset to the tracked surface point over the first
+        # `hand_depth_calibration` frames where it was known: only the hand's depth *changes* act
+        calib = [[] for _ in range(obsr.fingertips.num_hands)]
+        offset = np.full(obsr.fingertips.num_hands, np.nan)
         bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
         for t in bar:
             prev = T_parts[-1] if T_parts else rest
@@ -215,6 +225,8 @@ def track_video(
             T_guess = extrapolate(prev, prev2, config.velocity_factor)
             box = _roi_for(tm, T_guess, T_cam_obj, K, config.roi_margin)
             obs = with_hand_anchors(obsr.observe(t, demo.frames[t], box), anchors)
+            raw = obs
+            obs = with_hand_depth_offset(obs, offset)
             key, sub = jax.random.split(key)
             tf = time.perf_counter()
             T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
@@ -228,13 +240,21 @@ def track_video(
             T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
             solve_s.append(time.perf_counter() - tf)
             if use_hands:
+                known = (np.asarray(raw.hand_depth_seen) > 0) & anchors.anchored & ~np.isfinite(offset)
+                if known.any():
+                    z = surface_depths(tm, T, T_cam_obj, anchors)
+                    for h in np.flatnonzero(known):
+                        calib[h].append(z[h] - float(raw.hand_depth[h]))
+                        if len(calib[h]) >= config.hand_depth_calibration:
+                            offset[h] = float(np.median(calib[h]))
                 anchors = update_hand_anchors(anchors, tm, T, T_cam_obj, obs, t, config.hand_anchor_cells)
             T_parts.append(T)
             obs_all.append(obs)
             residual.append(np.asarray(aux["part_residual"]))
             visible.append(np.asarray(aux["part_visible"]))
             losses.append(float(aux["loss"]))
-            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"] + w.hand * aux["hand"]))
+            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"] + w.hand * aux["hand"]
+                              + w.hand_depth * aux["hand_depth"]))
             bar.set_postfix(loss=f"{losses[-1]:.3g}")
             if log is not None and record:
                 logged.append(("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux}))
@@ -326,6 +346,7 @@ def track_video(
         "render_capacity": rcfg.capacity,
         "occluder": getattr(obsr.occluder, "name", "?"),
         "mono_depth": getattr(obsr.mono, "name", "?"),
+        "hand_depth_table": obsr.table_depth is not None,
         "fingertips": getattr(obsr.fingertips, "name", "?") if use_hands else "none",
         "hand_anchors": best.anchors.summary() if use_hands else [],
         "separable": separable,
