@@ -5,6 +5,7 @@ For each object: make the studio scan + demo, build the ObjectModel from the sca
 `experiments/results/tracking_table.{md,json}`.
 
     python -m experiments.tracking_table [--objects red_box frog ...] [--frames 90] [--quick]
+        (results so far: WORK/NAME.partial.json, after each object; a rerun skips the objects in it)
     python -m experiments.tracking_table --size pipeline --frames 0 --name tracking_pipeline \
         --ablations "pipeline" "pipeline − hands" "pipeline − motion prior" "pipeline − both"
 
@@ -70,10 +71,19 @@ def row_config(ablation: str, quick: bool = False) -> tuple[TrackConfig, bool]:
     return dataclasses.replace(base, **{"smooth_iters": 10 if quick else base.smooth_iters, **opts}), hands
 
 
-def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default") -> dict:
-    results: dict = {}
+def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default",
+        partial: Path | None = None) -> dict:  # fmt: skip
+    """Track each object with each ablation. `partial`: a JSON of the results so far, rewritten
+    after each object; objects whose every ablation is in it are not tracked again (a long run
+    that died, e.g. XLA's CPU compiler running out of code memory after many objects in one
+    process, resumes where it stopped)."""
+    results: dict = json.loads(partial.read_text()) if partial is not None and partial.is_file() else {}
+    results = {o: r for o, r in results.items() if all(ab in r for ab in ablations)}
     pipe = PipelineConfig()
     for name in objects:
+        if name in results:
+            print(name, "already in", partial, flush=True)
+            continue
         root = work / name
         if not (root / "demo" / "demo.mp4").is_file():
             if size == "pipeline":
@@ -111,7 +121,9 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
                 "frames": traj.num_frames,
             }
             print(name, ab, f"ADD(obj) {m['mean_add_obj_mm']:.2f} mm, ADD(cam) {m['mean_add_mm']:.2f} mm", flush=True)
-    return results
+        if partial is not None:
+            atomic_write_json(partial, results)
+    return {o: results[o] for o in objects if o in results}
 
 
 def table(results: dict, ablations: list[str]) -> str:
@@ -152,8 +164,8 @@ def main() -> None:
                    help="scan and build: default (48 views 320×240, BuildConfig()) or the `rsrd-jax demo` sizes")  # fmt: skip
     p.add_argument("--work", type=Path, default=Path("experiments/work/tracking"))
     a = p.parse_args()
-    res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size)
     out = Path(__file__).resolve().parent / "results"
+    res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size, a.work / f"{a.name}.partial.json")
     atomic_write_json(out / f"{a.name}.json", res)
     atomic_write_text(out / f"{a.name}.md", table(res, a.ablations))
     print(table(res, a.ablations))

@@ -85,8 +85,9 @@ class PipelineConfig:
     depth the mono-depth gives the hand, read off the table around the object. The studio
     usb_plug's plug, lifted towards the camera under the hand, was tracked back along its
     viewing ray (38.6 mm; 34.6 mm with RSRD's ARAP weight for separable objects,
-    `TrackConfig.separable_arap`); with both 9.9 mm (robot trials' build). Stapler, red_box and
-    led_light unchanged within 0.2 mm."""
+    `TrackConfig.separable_arap`); with both 9.9 mm (robot trials' build). It acts on separable
+    objects only (`TrackConfig.hand_depth_attached`): on the jointed nerf_gun it pulled the held
+    slide off (4.22 -> 10.84 mm)."""
     track_motion: float = 0.1
     """Tracking's per-frame motion prior (`LossWeights.motion`; RSRD has none, the library
     default is 0): a part the data say little about stays where the extrapolation put it."""

@@ -869,3 +869,19 @@ def test_slide_choice_keeps_a_margin_tries_a_parts_axes_as_alternatives_and_stac
     # with no hypothesis beating the margin the start is kept
     best, tm, chosen, _ = _choose_slides(start, (), cands[:1], 0.05, with_slide, run_pass)
     assert tm == () and best is start and chosen == {}
+
+
+def test_hand_depth_weight_acts_on_separable_objects_unless_asked_for_attached_ones():
+    """`Weights.from_config`: the hand depth term keeps its weight on a separable object, is off
+    on an attached one by default (it pulled jointed parts off), and on with
+    `hand_depth_attached`; separable objects also take `separable_arap`."""
+    from rsrd_jax.track import LossWeights, TrackConfig
+    from rsrd_jax.track._dpm import Weights
+
+    cfg = TrackConfig(weights=LossWeights(hand_depth=0.2))
+    assert float(Weights.from_config(cfg, True, 0.05).hand_depth) == pytest.approx(0.2)
+    assert float(Weights.from_config(cfg, False, 0.05).hand_depth) == 0.0
+    on = dataclasses.replace(cfg, hand_depth_attached=True)
+    assert float(Weights.from_config(on, False, 0.05).hand_depth) == pytest.approx(0.2)
+    assert float(Weights.from_config(cfg, True, 0.05).arap) == pytest.approx(cfg.separable_arap)
+    assert float(Weights.from_config(cfg, False, 0.05).arap) == pytest.approx(cfg.weights.arap)

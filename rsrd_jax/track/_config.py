@@ -203,6 +203,13 @@ class TrackConfig(eqx.Module):
     or a finger, not the anchored point, a bias of up to a finger's or the part's thickness;
     without the shift the stapler's held arm went from 1.8 to 3.4 mm and the red box's lid from
     2.0 to 3.4 mm; with it 1.8 and 2.0 mm, and the usb_plug's plug 9.9 mm instead of 11.6)."""
+    hand_depth_attached: bool = False
+    """Whether the hand depth term (`LossWeights.hand_depth`) also acts on objects whose parts
+    are attached (not `separable`). Off: there the joints already tie a held part's depth to the
+    rest, and the table reading, biased by the hand's and the part's shapes, pulled held parts
+    off (robot-trial builds, pipeline tracking, weight 0.2: nerf_gun 4.22 -> 10.84 mm, frog 2.03
+    -> 4.59, toy_drawer 4.86 -> 13.60); on the separable
+    usb_plug it is what follows the lifted plug (21.4 -> 8.8 mm)."""
     hand_depth_scale: float = 0.01
     """Cauchy scale of the hand depth term, metres (studio usb_plug before the calibration, ARAP
     weight 0: plug 10.3 mm at 0.01, 10.6 mm at 0.005)."""

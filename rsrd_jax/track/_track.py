@@ -201,7 +201,7 @@ def track_video(
 
     use_hands = fingertips is not None and config.weights.hand > 0
     table = config.support_plane if config.support_plane is not None else model.meta.get("support_plane")
-    if use_hands and config.weights.hand_depth > 0 and mono is not None and table is not None:
+    if use_hands and float(w.hand_depth) > 0 and mono is not None and table is not None:
         # the hand depth term's table: the support plane's depth along every pixel's ray
         obsr.table_depth = plane_depth(K, T_cam_obj, np.asarray(table, np.float64))
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
