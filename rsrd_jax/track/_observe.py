@@ -293,9 +293,9 @@ class Observer:
         Only the mono-depth's order is used. Unknown (seen 0) without `table_depth`, where the
         occluder mask covers the pinch point (the mono-depth there sees the hand, not the held
         part: on the studio usb_plug the brick's pinch point, behind the demonstrator's arm, read
-        80 mm too near), when fewer
-        than 5 % of the pixels lie on either side (the hand is outside the table's depth range)
-        or when more than 20 % of them are on the wrong side at the best threshold.
+        80 mm too near), when fewer than 5 % of the pixels lie on either side (the hand is
+        outside the table's depth range) or when more than 20 % of them are on the wrong side at
+        the best threshold.
 
         Returns:
             (H,) depths (0 where unknown), (H,) 1 where known.
