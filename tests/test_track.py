@@ -552,7 +552,8 @@ def test_track_with_hands_anchors_the_pinched_part_and_pulls_it_to_the_fingertip
 
 def test_slide_hypotheses_only_for_parts_a_hand_held(tmp_path):
     """Joint discovery with the studio fingertips on the bear (one hand waves its right arm):
-    with every jointed part made a slide candidate (`slide_point_ratio=0`, `slide_min_m=0`), only
+    with every jointed part made a slide candidate (`slide_point_ratio=0`, `slide_min_m=0`, no
+    `slide_max_turn_deg`), only
     the held arm gets slide hypotheses; the parts no hand held are reported as dropped candidates
     (`TrackConfig.slide_held_only`)."""
     from rsrd_jax.track import StudioFingertips
@@ -564,7 +565,7 @@ def test_slide_hypotheses_only_for_parts_a_hand_held(tmp_path):
     gt = read_demo_gt(root / "demo")
     T0 = jaxlie.SE3(jnp.asarray(gt["T_cam_world_part"][0, 0], jnp.float32))
     cfg = dataclasses.replace(TINY, steps_per_frame=4, smooth_iters=0, joints=True, joint_first_steps=4,
-                              slide_point_ratio=0.0, slide_min_m=0.0)  # fmt: skip
+                              slide_point_ratio=0.0, slide_min_m=0.0, slide_max_turn_deg=None)  # fmt: skip
     traj = track_video(model, demo, cfg, TINY_INIT, StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),
                        extractor=ext, progress=False, T_cam_obj_init=T0, fingertips=StudioFingertips(root / "demo"))  # fmt: skip
     held = [a["part"] for a in traj.meta["hand_anchors"]]

@@ -460,7 +460,9 @@ def test_discover_joints_takes_the_hinge_axis_the_hand_moved_the_part_about(rng)
     (falling behind, the turn hidden by the hand) turned it about an axis 60° off y. Scored by the
     pass's points alone the hinge is another of the bar's principal directions; with the hand's
     pinch track it is y, and the held bar's slide hypotheses are ruled out (the pinch point
-    turned through a wide arc), unless `slide_hand_ratio` is None."""
+    turned through a wide arc), unless `slide_hand_ratio` is None. The pass turned the bar 72°:
+    by `slide_max_turn_deg` (20°) it is hinged without the hand too; under a 75° limit it stays a
+    slide candidate."""
     from rsrd_jax.track import TrackConfig
     from rsrd_jax.track._dpm import Weights
     from rsrd_jax.track._hands import HandAnchors
@@ -480,7 +482,7 @@ def test_discover_joints_takes_the_hinge_axis_the_hand_moved_the_part_about(rng)
         T.append(jaxlie.SE3(jnp.asarray([[1, 0, 0, 0, *cents[0]], [*np.asarray(R.wxyz), *t]], jnp.float32)))
     held = HandAnchors(np.array([1]), (anchor - cents[1])[None], np.array([0]))
     hands = _HandTrack(uv[:, None], np.ones((F, 1), bool), T_co, K)
-    cfg = TrackConfig(joints=True, hinge_axes=True)
+    cfg = TrackConfig(joints=True, hinge_axes=True, slide_max_turn_deg=None)
     w = Weights.from_config(cfg, False, 0.05)
     up = np.array([0.0, 0.0, 1.0])
     _, by_points, _, cand_points = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up)
@@ -494,6 +496,55 @@ def test_discover_joints_takes_the_hinge_axis_the_hand_moved_the_part_about(rng)
     _, _, _, cand_all = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_ratio=None), jax.random.key(0),
                                          _stub_pass(T, held), up, hands)  # fmt: skip
     assert [c[0] for c in cand_all] == [1]
+    # the turn test, without the hand: 72° turned, no slide candidate under 20°, one under 75°
+    turned = dataclasses.replace(cfg, slide_max_turn_deg=20.0)
+    _, info_t, _, cand_t = _discover_joints(tm, neighbour, w, turned, jax.random.key(0), _stub_pass(T, held), up)
+    assert cand_t == [] and info_t["slide_candidates_turned"] == [1], info_t
+    assert info_t["1"]["first_turn_deg"] == pytest.approx(72.0, abs=0.1)
+    _, info_s, _, cand_s = _discover_joints(tm, neighbour, w, dataclasses.replace(turned, slide_max_turn_deg=75.0), jax.random.key(0),
+                                            _stub_pass(T, held), up)  # fmt: skip
+    assert [c[0] for c in cand_s] == [1] and "slide_candidates_turned" not in info_s
+
+
+def test_discover_joints_tries_only_the_slide_direction_the_pinch_track_fits_best(rng):
+    """nerf_gun's case on a bar: the hand pulls the bar 30 mm along its length (x); the stubbed
+    first pass lags it, turning it 6° about a far point. With the hand's pinch track and no
+    ratio test, every slide direction of the bar stays a candidate without `slide_hand_best`, and
+    only x with `slide_hand_best=1`."""
+    from rsrd_jax.geometry import Intrinsics, look_at, project_points
+    from rsrd_jax.track import TrackConfig
+    from rsrd_jax.track._dpm import Weights
+    from rsrd_jax.track._hands import HandAnchors
+    from rsrd_jax.track._track import _HandTrack, _discover_joints
+
+    tm, neighbour, cents, bar = _bar_on_base(rng)
+    F = 20
+    far = np.array([0.05, 0.4, 0.003])
+    T = []
+    for a in np.deg2rad(np.linspace(0.0, 6.0, F)):
+        R = jaxlie.SO3.from_z_radians(float(a))
+        t = far + np.asarray(R.as_matrix()) @ (cents[1] - far)
+        T.append(jaxlie.SE3(jnp.asarray([[1, 0, 0, 0, *cents[0]], [*np.asarray(R.wxyz), *t]], jnp.float32)))
+    anchor = cents[1] + np.array([0.03, 0.0, 0.0])
+    T_co = look_at(np.array([0.12, -0.35, 0.2]), np.array([0.03, 0.0, 0.02]))
+    K = Intrinsics.create(300.0, 300.0, 160.0, 120.0, 320, 240)
+    path = anchor + np.linspace(0.0, 0.03, F)[:, None] * np.array([1.0, 0.0, 0.0])
+    uv, _ = project_points(K, T_co @ jnp.asarray(path, jnp.float32))
+    uv = np.asarray(uv, np.float64) + rng.normal(0.0, 0.3, (F, 2))
+    held = HandAnchors(np.array([1]), (anchor - cents[1])[None], np.array([0]))
+    hands = _HandTrack(uv[:, None], np.ones((F, 1), bool), np.asarray(T_co.wxyz_xyz), K)
+    cfg = TrackConfig(joints=True, hinge_axes=True, slide_hand_ratio=1e3, slide_hand_best=None)
+    w = Weights.from_config(cfg, False, 0.05)
+    up = np.array([0.0, 0.0, 1.0])
+    _, info, _, every = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up, hands)
+    assert [c[0] for c in every] == [1] and len(every[0][3]) == 3, info
+    assert info["1"]["first_turn_deg"] == pytest.approx(6.0, abs=0.1)
+    _, info1, _, best = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_best=1), jax.random.key(0),
+                                         _stub_pass(T, held), up, hands)  # fmt: skip
+    assert [c[0] for c in best] == [1] and len(best[0][3]) == 1, info1
+    assert abs(best[0][3][0] @ [1.0, 0.0, 0.0]) > 0.99, best[0][3]
+    px = np.asarray(info1["1"]["slide_hand_px"])
+    assert px.min() < 1.0 < 3 * px.min() < np.sort(px)[1], px
 
 
 def test_revolute_loss_allows_only_turns_about_the_axis():

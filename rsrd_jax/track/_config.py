@@ -161,6 +161,21 @@ class TrackConfig(eqx.Module):
     path); the frog's two held legs 2.0–12.5 against 2.6 and 6.1. So the bear's and the red box's
     slide passes (4 each) are skipped and every slide of nerf_gun, toy_drawer and the frog is
     still tried."""
+    slide_max_turn_deg: float | None = 20.0
+    """With `slides`: a candidate part that the first pass turned by more than this (degrees,
+    relative to its neighbour, in any frame) is hinged and gets no slide hypothesis. None: no
+    such test. Measured on the first passes of the robot trials' builds (held parts): the
+    slides of nerf_gun 9.7° and toy_drawer 6.5°; the hinges of the frog's legs 40.2° and
+    28.3° (true 40° and 34°), stapler 26.3°, scissors 17.8°, sunglasses 66.1°, bear 82.3°,
+    red_box 91.8°, led_light 95.7°. The frog's 8 slide passes (all losing, by 0.05–0.9 % of
+    the data loss) took 623 of its 768 s of tracking."""
+    slide_hand_best: int | None = 1
+    """With `slide_hand_ratio`: of the slide directions the hand does not rule out, only this
+    many with the lowest pinch-track residual are tried (None: all). On the robot trials' builds
+    the hand's best direction is the one whose pass wins: nerf_gun's slide 0.78 px along x against
+    1.14 and 1.30 (x won by 0.98 % of the data loss), toy_drawer's drawer 0.40 px along the level
+    direction against 0.45–0.61 (won by 1.0 %); the other hypotheses' passes took 178 of
+    nerf_gun's 451 s and 287 of toy_drawer's 561 s."""
     slide_min_gain: float = 0.005
     """A slide hypothesis replaces the one chosen so far only when its data loss summed over the
     frames is lower by more than this fraction. Measured (robot trials' builds, every held part

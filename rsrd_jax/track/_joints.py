@@ -124,17 +124,23 @@ def fit_joint_point(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: i
     Args:
         T_obj_part: F×P×7 part poses (wxyz_xyz, object frame). centroids: P×3 rest centroids.
     """
+    if relative_turn_deg(T_obj_part, k, nb).max() < min_angle_deg:
+        return None
     T = np.asarray(jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32)).as_matrix(), np.float64)
     Rk, tk, Rn, tn = T[:, k, :3, :3], T[:, k, :3, 3], T[:, nb, :3, :3], T[:, nb, :3, 3]
-    rel = np.einsum("fji,fjk->fik", Rn, Rk)
-    ang = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    if ang.max() < min_angle_deg:
-        return None
     A = (Rk - Rn).reshape(-1, 3)
     b = (np.einsum("fij,j->fi", Rk, centroids[k]) - np.einsum("fij,j->fi", Rn, centroids[nb]) + tn - tk).reshape(-1)
     lam = reg * max(float(np.trace(A.T @ A)) / 3, 1e-12)
     return np.linalg.solve(A.T @ A + lam * np.eye(3), A.T @ b + lam * np.asarray(x0, np.float64))
 
+
+
+def relative_turn_deg(T_obj_part: np.ndarray, k: int, nb: int) -> np.ndarray:
+    """F: the angle (degrees) by which part k is turned relative to part `nb` in each frame of
+    the pass `T_obj_part` (F×P×7), from their rest orientations."""
+    R = np.asarray(jaxlie.SO3(jnp.asarray(np.asarray(T_obj_part)[..., :4], jnp.float32)).as_matrix(), np.float64)
+    rel = np.einsum("fji,fjk->fik", R[:, nb], R[:, k])
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
 
 
 def relative_displacement(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int) -> np.ndarray:

@@ -18,7 +18,8 @@ from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
 from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
-from ._joints import fit_joint_point, hand_hinge_residual, hand_slide_residual, hinge_axis, is_slide_candidate, joint_slots, slide_axes, slide_directions, with_joint_slots
+from ._joints import (fit_joint_point, hand_hinge_residual, hand_slide_residual, hinge_axis, is_slide_candidate, joint_slots, relative_turn_deg,
+                      slide_axes, slide_directions, with_joint_slots)
 from ._init import initialize_pose
 from ._hands import HandAnchors, surface_depths, update_hand_anchors, with_hand_anchors, with_hand_depth_offset
 from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, plane_depth, roi_box
@@ -441,6 +442,18 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         # (its few-mm drift, a static limb) gets no slide hypothesis
         info["slide_candidates_not_held"] = [int(c[0]) for c in candidates if c[0] not in held]
         candidates = [c for c in candidates if c[0] in held]
+    if config.slide_max_turn_deg is not None:
+        # a part the first pass turned through a wide angle relative to its neighbour is hinged:
+        # a slide's first pass turns it by a few degrees (`slide_max_turn_deg`)
+        kept = []
+        for c in candidates:
+            turn = float(relative_turn_deg(T_a, c[0], c[1]).max())
+            info[str(c[0])]["first_turn_deg"] = round(turn, 2)
+            if turn <= config.slide_max_turn_deg:
+                kept.append(c)
+            else:
+                info.setdefault("slide_candidates_turned", []).append(int(c[0]))
+        candidates = kept
     if config.slide_hand_ratio is not None and hand_ref:
         kept = []
         for k, nb, radius, dirs, mask, p in candidates:
@@ -451,6 +464,9 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
             px = hand_slide_residual(T_a, cents, held, other, cents[held] + first.anchors.point[h], hands.T_cam_obj,
                                      hands.intrinsics, hands.pinch_uv[:, h], f, dirs)  # fmt: skip
             ok = px <= config.slide_hand_ratio * hinge_px + SLIDE_HAND_FLOOR_PX
+            if config.slide_hand_best is not None and ok.sum() > config.slide_hand_best:
+                # only the directions the pinch track fits best
+                ok &= px <= np.sort(px[ok])[config.slide_hand_best - 1]
             info[str(k)]["slide_hand_px"] = np.round(px, 2).tolist()
             if ok.any():
                 kept.append((k, nb, radius, dirs[ok], mask, p))
