@@ -38,3 +38,37 @@ def enable_compilation_cache(path: str | Path | None = None, min_compile_time_s:
     jax.config.update("jax_compilation_cache_dir", str(d))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time_s))
     return d
+
+
+_COMPILE_EVENTS = "/jax/core/compile/"
+"""Prefix of JAX's duration events for tracing, lowering and XLA compilation (the last includes
+a load from the persistent cache)."""
+
+
+class CompileClock:
+    """Seconds JAX spends compiling (tracing, lowering to MLIR, XLA compilation or loading from
+    the persistent cache) while the block runs, from JAX's monitoring events: a stage's run time
+    can be reported apart from its one-off compilation.
+
+    >>> with CompileClock() as clock:
+    ...     f(x)
+    >>> clock.seconds
+    """
+
+    def __init__(self):
+        self.seconds = 0.0
+
+    def _on_event(self, name: str, duration: float, **_) -> None:
+        if name.startswith(_COMPILE_EVENTS):
+            self.seconds += float(duration)
+
+    def __enter__(self) -> "CompileClock":
+        import jax.monitoring
+
+        jax.monitoring.register_event_duration_secs_listener(self._on_event)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import jax.monitoring
+
+        jax.monitoring.unregister_event_duration_listener(self._on_event)

@@ -81,6 +81,33 @@ def test_compilation_cache_stores_and_can_be_turned_off(tmp_path):
     assert off.stdout.strip() == "None" and not (tmp_path / "off").exists()
 
 
+def test_compile_clock_counts_compilation_and_not_compiled_calls():
+    """`CompileClock` adds up JAX's compile events inside its block: a first call of a new jitted
+    function takes seconds of tracing and XLA compilation (at least the part of the call's wall
+    time they account for); a second call of the compiled function, none; a listener left after
+    the block would keep counting."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+
+    from rsrd_jax._cache import CompileClock
+
+    f = jax.jit(lambda x: jnp.cumsum(jnp.sin(x) @ x.T, axis=0) * 3.0 + 1.0)
+    x = jnp.ones((64, 64))
+    with CompileClock() as first:
+        t0 = time.perf_counter()
+        f(x).block_until_ready()
+        wall = time.perf_counter() - t0
+    assert 0.0 < first.seconds <= wall
+    with CompileClock() as again:
+        f(x).block_until_ready()
+    assert again.seconds == 0.0
+    seen = first.seconds
+    jax.jit(lambda x: jnp.tanh(x) + 2.0)(x).block_until_ready()  # compiled after the block
+    assert first.seconds == seen
+
+
 def test_plan_approach_clearance_rejects_bad_values(tmp_path, capsys):
     """``--approach-clearance`` takes metres or 'open'; anything else is an argparse error naming
     the value, before any file is read."""

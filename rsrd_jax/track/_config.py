@@ -189,7 +189,8 @@ class TrackConfig(eqx.Module):
     when the joint point wins, it is tracked once more with `velocity_hypothesis` (since session
     29; before, the hinges of red_box and frog kept this pass: ADD 2.68 → 3.37 and 2.03 → 3.13
     mm). Measured on nerf_gun with the true slide axis: slide ADD 11.9 mm with one start, 3.3 mm
-    with 1.0."""
+    with 1.0. One start extrapolated with 1.0 alone (half the cost) lost both slides on the
+    robot trials' builds (session 33: nerf_gun 4.22 → 15.89 mm, toy_drawer 4.86 → 13.73 mm)."""
     slide_min_m: float = 0.005
     """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
     hand_anchor_cells: float = 1.0
