@@ -466,7 +466,7 @@ def test_hand_term_follows_the_pinched_lid_under_the_hand(tmp_path):
     without). Without joint discovery the term no longer helps the lid at this size (session 33:
     10.85 / 13.30 against 11.99 / 12.32 mm; the commit that wrote this test gives the same today,
     though it measured 9.9 / 10.6 against 16.0 / 15.1 then: the environment changed, not the
-    code)."""
+    code; likely MuJoCo, which renders the demo, 4.0.0 → 4.0.1)."""
     from rsrd_jax.track import LossWeights, StudioFingertips
 
     root, model, ext, demo, T_cwp, T0, pts = _gt_model_demo(tmp_path, "red_box")
