@@ -5,7 +5,8 @@ For each object: make the studio scan + demo, build the ObjectModel from the sca
 `experiments/results/tracking_table.{md,json}`.
 
     python -m experiments.tracking_table [--objects red_box frog ...] [--frames 90] [--quick]
-        (results so far: WORK/NAME.partial.json, after each object; a rerun skips the objects in it)
+        (results so far: WORK/NAME.partial.json, after each object; a rerun skips the objects in it,
+        so one process per object (`--objects X`) and a last run over them all writes the full table)
     python -m experiments.tracking_table --size pipeline --frames 0 --name tracking_pipeline \
         --ablations "pipeline" "pipeline − hands" "pipeline − motion prior" "pipeline − both"
 
@@ -140,13 +141,16 @@ def table(results: dict, ablations: list[str]) -> str:
         cams = [results[o][ab]["add_cam_mm"] for o in results]
         cells = [f"{v:.2f} ({c:.1f})" for v, c in zip(vals, cams)]
         lines.append(f"| {ab} | " + " | ".join(cells) + f" | {np.mean(vals):.2f} |")
-    lines += ["", "Per part (object-frame ADD, mm) and tracking rate (frames/s, compilation excluded):", "",
-              "| object | method | per part | frames/s |", "|---|---|---|---|"]  # fmt: skip
+    lines += ["", "Per part (object-frame ADD, mm), tracking rate (frames/s, compilation excluded) and the initialisation's "
+              "time (s; in brackets the part of it JAX spent compiling, where recorded):", "",
+              "| object | method | per part | frames/s | init |", "|---|---|---|---|---|"]  # fmt: skip
     for o in results:
         for ab in ablations:
             r = results[o][ab]
             parts = " / ".join(f"{v:.1f}" for v in r["per_part_add_obj_mm"])
-            lines.append(f"| {o} | {ab} | {parts} | {r['frames_per_second']:.2f} |")
+            t = r.get("timings_s", {})
+            init = "—" if "init_s" not in t else f"{t['init_s']:.1f}" + (f" ({t['init_compile_s']:.1f})" if "init_compile_s" in t else "")
+            lines.append(f"| {o} | {ab} | {parts} | {r['frames_per_second']:.2f} | {init} |")
     return "\n".join(lines) + "\n"
 
 
