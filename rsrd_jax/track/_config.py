@@ -165,9 +165,9 @@ class TrackConfig(eqx.Module):
     """With `slides`: a candidate part that the first pass turned by more than this (degrees,
     relative to its neighbour, in any frame) is hinged and gets no slide hypothesis. None: no
     such test. Measured on the first passes of the robot trials' builds (held parts): the
-    slides of nerf_gun 9.7° and toy_drawer 6.5°; the hinges of the frog's legs 40.2° and
-    28.3° (true 40° and 34°), stapler 26.3°, scissors 17.8°, sunglasses 66.1°, bear 82.3°,
-    red_box 91.8°, led_light 95.7°. The frog's 8 slide passes (all losing, by 0.05–0.9 % of
+    slides of nerf_gun 9.7–10.2° and toy_drawer 5.9–6.5°; the hinges of the frog's legs
+    40–43° and 26–28° (true 40° and 34°), stapler 26.3°, scissors 17.8°, sunglasses 66.1°,
+    bear 82.3°, red_box 91.8°, led_light 95.7°. The frog's 8 slide passes (all losing, by 0.05–0.9 % of
     the data loss) took 623 of its 768 s of tracking."""
     slide_hand_best: int | None = 1
     """With `slide_hand_ratio`: of the slide directions the hand does not rule out, only this
