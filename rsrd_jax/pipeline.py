@@ -109,6 +109,9 @@ class PipelineConfig:
     `PlanConfig.hand_grasp_config`)."""
     plan_grasp_keyframe_weight: float = 3.0
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
+    plan_normal_radius: float = 0.0
+    """`GraspConfig.normal_radius` of the plan's grasp samplings (`PlanConfig.with_normal_radius`):
+    contact normals averaged over a pad-sized patch (m); 0 = single-face normals (RSRD)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -331,7 +334,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
                           config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
-                                            grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight),
+                                            grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight,
+                                            ).with_normal_radius(cfg.plan_normal_radius),
                           mesh_points=mesh_points, hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:

@@ -18,7 +18,7 @@ from rsrd_jax.grasp import (
     sample_antipodal_grasps,
     sample_part_grasps,
 )
-from rsrd_jax.grasp._antipodal import _traced
+from rsrd_jax.grasp._antipodal import _traced, patch_normals
 from rsrd_jax.grasp._mesh import _decimate, _is_watertight
 
 BOX = (0.03, 0.02, 0.06)  # metres; 60 mm exceeds the 50 mm jaw
@@ -411,3 +411,51 @@ def test_grasps_near_a_point_start_within_its_radius_and_rank_by_distance_to_it(
     assert len(cf) and np.all(cf[:, 0, 0] >= 0.05 - 0.01 - 1e-6)  # within 10 mm of the plate's +x edge
     with pytest.raises(ValueError, match="near"):
         sample_antipodal_grasps(fine, key, cfg, near=(np.array([np.nan, 0.0, 0.0]), 0.01))
+
+
+def _tilt_from_cross_section(g) -> np.ndarray:
+    """Degrees between each base grasp's contact line and the z = const plane, for grasps with
+    both contacts on the side of a z-axis cylinder (clear of its 40 mm long body's ends)."""
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)]
+    side = (np.abs(c[..., 2]) < 0.014).all(1)
+    d = c[:, 1] - c[:, 0]
+    return np.degrees(np.arcsin(np.abs(d[:, 2]) / np.linalg.norm(d, axis=1)))[side]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_patch_normals_keep_grasp_axes_square_to_a_noisy_round_part(seed):
+    # A frog leg's size: a cylinder 14 mm across, 40 mm long, from 3DGS-like noisy surface
+    # centres. Single-face normals of its alpha shape scatter, so grasp axes tilt along the
+    # cylinder and a pinch would turn the part until its surface lay flat on the pads.
+    cyl = trimesh.creation.cylinder(radius=0.007, height=0.04, sections=64)
+    pts, _ = trimesh.sample.sample_surface(cyl, 1500, seed=seed)
+    mesh = build_part_mesh(pts + np.random.default_rng(seed).normal(0.0, 5e-4, pts.shape))
+    one = _tilt_from_cross_section(sample_antipodal_grasps(mesh, jax.random.key(seed), GraspConfig(num_grasps=64)))
+    patch = _tilt_from_cross_section(sample_antipodal_grasps(mesh, jax.random.key(seed), GraspConfig(num_grasps=64, normal_radius=0.008)))
+    assert len(one) >= 30 and len(patch) >= 30
+    assert np.percentile(one, 90) > 4.0  # the single-face axes (what the test guards against)
+    assert np.percentile(patch, 90) < 2.5 and patch.max() < 4.0
+    assert np.median(patch) < 0.5 * np.median(one)
+    # the planner's switch sets the radius of each of its samplings
+    from rsrd_jax.plan import PlanConfig
+
+    cfg = PlanConfig().with_normal_radius(0.008)
+    assert cfg.grasp_config.normal_radius == cfg.spread_grasp_config.normal_radius == cfg.hand_grasp_config.normal_radius == 0.008
+    assert cfg.grasp_config.num_grasps == PlanConfig().grasp_config.num_grasps
+    with pytest.raises(ValueError, match="normal_radius"):
+        sample_antipodal_grasps(mesh, jax.random.key(seed), GraspConfig(normal_radius=float("nan")))
+
+
+def test_patch_normals_do_not_mix_the_sides_of_a_thin_plate_or_a_box_edge():
+    plate = trimesh.creation.box((0.04, 0.03, 0.002))
+    plate = plate.subdivide().subdivide()
+    tri = np.asarray(plate.vertices)[np.asarray(plate.faces)]
+    own = patch_normals(tri, 0.0)
+    np.testing.assert_allclose(np.linalg.norm(own, axis=1), 1.0, atol=1e-9)
+    # 8 mm spans the 2 mm thickness and the plate's rims: each face keeps its own side's normal
+    np.testing.assert_allclose(patch_normals(tri, 0.008), own, atol=1e-9)
+    # a degenerate (padding) face gets a zero normal and changes no other
+    padded = np.concatenate([tri, np.zeros((3, 3, 3))])
+    out = patch_normals(padded, 0.008)
+    np.testing.assert_allclose(out[: len(tri)], own, atol=1e-9)
+    assert np.all(out[len(tri) :] == 0.0)

@@ -234,6 +234,13 @@ class PlanConfig(eqx.Module):
     seed: int = 0
     """Seed for grasp sampling."""
 
+    def with_normal_radius(self, radius: float) -> "PlanConfig":
+        """This config with ``GraspConfig.normal_radius`` = ``radius`` (m) in each of its grasp
+        samplings (best-scored, near the hands, spread)."""
+        sub = lambda g: None if g is None else dataclasses.replace(g, normal_radius=float(radius))  # noqa: E731
+        return dataclasses.replace(self, grasp_config=sub(self.grasp_config), hand_grasp_config=sub(self.hand_grasp_config),
+                                   spread_grasp_config=sub(self.spread_grasp_config))  # fmt: skip
+
 
 class RobotPlan(eqx.Module):
     """A plan (host numpy arrays). Arm index 0 = right, 1 = left; unused arms have part -1."""
