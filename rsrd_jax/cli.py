@@ -316,7 +316,9 @@ def cmd_plan(a: argparse.Namespace) -> int:
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
-    ).with_normal_radius(a.normal_radius)  # fmt: skip
+    )  # fmt: skip
+    if a.square_grasps:
+        cfg = cfg.with_square_grasps()
     t0 = time.perf_counter()
     robot = load_yumi()
     plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
@@ -529,8 +531,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="TCP rotation tolerance at the first keyframe, the grasp (degrees)")
     pl.add_argument("--grasp-keyframe-weight", type=float, default=3.0,
                     help="weight of the first keyframe's (the grasp's) pose rows relative to the others")
-    pl.add_argument("--normal-radius", type=float, default=0.0,
-                    help="grasp contact normals averaged over faces within this radius (m; 0 = single faces, RSRD)")
+    pl.add_argument("--square-grasps", action="store_true",
+                    help="prefer square pinches: contact normals averaged over 8 mm, contacts within 15 deg of the "
+                         "axis (PlanConfig.with_square_grasps; the spread set keeps RSRD's rule)")  # fmt: skip
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,

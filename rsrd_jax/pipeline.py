@@ -109,9 +109,9 @@ class PipelineConfig:
     `PlanConfig.hand_grasp_config`)."""
     plan_grasp_keyframe_weight: float = 3.0
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
-    plan_normal_radius: float = 0.0
-    """`GraspConfig.normal_radius` of the plan's grasp samplings (`PlanConfig.with_normal_radius`):
-    contact normals averaged over a pad-sized patch (m); 0 = single-face normals (RSRD)."""
+    plan_square_grasps: bool = False
+    """Prefer square pinches (`PlanConfig.with_square_grasps`: contact normals averaged over
+    8 mm, contacts within 15° of the axis; the spread set keeps RSRD's rule)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -178,6 +178,15 @@ def anchored_hand_parts(traj) -> tuple[int, int] | None:
     its depth error (1–8 %; on the frog both hands then lie 19–26 mm from the legs they hold)."""
     parts = [a.get("part") for a in traj.meta.get("hand_anchors", [])]
     return (int(parts[0]), int(parts[1])) if len(parts) == 2 and None not in parts else None
+
+
+def _plan_config(cfg: PipelineConfig) -> PlanConfig:
+    """The planner's options of a pipeline run."""
+    from .plan import PlanConfig
+
+    out = PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
+                     grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight)
+    return out.with_square_grasps() if cfg.plan_square_grasps else out
 
 
 def anchored_hand_points(traj) -> list[tuple[int, np.ndarray]]:
@@ -333,9 +342,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         hand_parts = anchored_hand_parts(traj)
         hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
-                          config=PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
-                                            grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight,
-                                            ).with_normal_radius(cfg.plan_normal_radius),
+                          config=_plan_config(cfg),
                           mesh_points=mesh_points, hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:

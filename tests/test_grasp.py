@@ -439,9 +439,11 @@ def test_patch_normals_keep_grasp_axes_square_to_a_noisy_round_part(seed):
     # the planner's switch sets the radius of each of its samplings
     from rsrd_jax.plan import PlanConfig
 
-    cfg = PlanConfig().with_normal_radius(0.008)
-    assert cfg.grasp_config.normal_radius == cfg.spread_grasp_config.normal_radius == cfg.hand_grasp_config.normal_radius == 0.008
-    assert cfg.grasp_config.num_grasps == PlanConfig().grasp_config.num_grasps
+    cfg, base = PlanConfig().with_square_grasps(), PlanConfig()
+    for g in (cfg.grasp_config, cfg.hand_grasp_config):
+        assert (g.normal_radius, g.friction_angle_deg) == (0.008, 15.0)
+    assert cfg.grasp_config.num_grasps == base.grasp_config.num_grasps
+    assert cfg.spread_grasp_config == base.spread_grasp_config  # the rim fallback keeps RSRD's rule
     with pytest.raises(ValueError, match="normal_radius"):
         sample_antipodal_grasps(mesh, jax.random.key(seed), GraspConfig(normal_radius=float("nan")))
 

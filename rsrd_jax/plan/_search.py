@@ -234,12 +234,16 @@ class PlanConfig(eqx.Module):
     seed: int = 0
     """Seed for grasp sampling."""
 
-    def with_normal_radius(self, radius: float) -> "PlanConfig":
-        """This config with ``GraspConfig.normal_radius`` = ``radius`` (m) in each of its grasp
-        samplings (best-scored, near the hands, spread)."""
-        sub = lambda g: None if g is None else dataclasses.replace(g, normal_radius=float(radius))  # noqa: E731
-        return dataclasses.replace(self, grasp_config=sub(self.grasp_config), hand_grasp_config=sub(self.hand_grasp_config),
-                                   spread_grasp_config=sub(self.spread_grasp_config))  # fmt: skip
+    def with_square_grasps(self, normal_radius: float = 0.008, cone_deg: float = 15.0) -> "PlanConfig":
+        """This config with square pinches preferred: its best-scored and near-hand grasp
+        samplings take contact normals averaged over ``normal_radius`` (m, ``GraspConfig.
+        normal_radius``) and accept only contacts within ``cone_deg`` of the axis, so that a pinch
+        does not turn a round or tilted part as the jaw closes; the spread set (tier 1, used only
+        when none of those survives) keeps RSRD's rule (single-face normals, 45°) for parts held
+        at a rim (a lid's lip, a panel's edge)."""
+        sq = lambda g: None if g is None else dataclasses.replace(  # noqa: E731
+            g, normal_radius=float(normal_radius), friction_angle_deg=float(cone_deg))
+        return dataclasses.replace(self, grasp_config=sq(self.grasp_config), hand_grasp_config=sq(self.hand_grasp_config))
 
 
 class RobotPlan(eqx.Module):
