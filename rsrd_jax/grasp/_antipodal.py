@@ -66,11 +66,9 @@ class GraspConfig(eqx.Module):
     normals of a decimated alpha shape of Gaussian centres scatter by 10–25°. A grasp axis
     tilted that far from a round part's cross-section turns the part in the pinch until its
     surface lies flat on the pads (studio frog legs, tracked: jaw 75–84° to the leg, legs turned
-    16–19° by the close; 0.008 made the frog's robot trials 9/10 from 2/10). 0 = single-face
-    normals (RSRD), the default: with 0.008 three ground-truth plans that pass in simulation
-    failed (red_box: no lid grasp tracked the motion; led_light: a pad off the panel; frog at
-    30 frames: a leg ended 32° off; session 34), so it is an option
-    (``PipelineConfig.plan_normal_radius``) until measured over all robot trials."""
+    16–19° by the close). 0 = single-face normals (RSRD), the default; the planner's
+    ``PlanConfig.with_square_grasps`` (off by default, ``PipelineConfig.plan_square_grasps``)
+    uses 8 mm with a 15° cone."""
 
 
 class GraspResult(eqx.Enumeration):
