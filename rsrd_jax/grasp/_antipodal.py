@@ -342,8 +342,7 @@ def patch_normals(tri: Float[np.ndarray, "f 3 3"], radius: float) -> Float[np.nd
     """Unit normal of each face averaged (area-weighted) over the faces whose centroids lie
     within `radius` (m) of its own and whose normals lie within 60° of its own (the same side of
     a thin part; not a perpendicular face across an edge); `radius` 0 gives the faces' own
-    normals. Degenerate faces
-    get zero normals."""
+    normals. Degenerate faces get zero normals."""
     tri = np.asarray(tri, np.float64)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # 2 × area × normal
     norm = np.linalg.norm(cross, axis=-1, keepdims=True)
