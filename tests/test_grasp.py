@@ -436,7 +436,11 @@ def test_patch_normals_keep_grasp_axes_square_to_a_noisy_round_part(seed):
     assert np.percentile(one, 90) > 4.0  # the single-face axes (what the test guards against)
     assert np.percentile(patch, 90) < 2.5 and patch.max() < 4.0
     assert np.median(patch) < 0.5 * np.median(one)
-    # the planner's switch sets the radius of each of its samplings
+
+
+def test_square_grasps_switch_and_bad_normal_radius():
+    """The planner's switch sets patch normals and the narrow cone on its best-scored and
+    near-hand samplings only; a radius that is not a number >= 0 is refused before sampling."""
     from rsrd_jax.plan import PlanConfig
 
     cfg, base = PlanConfig().with_square_grasps(), PlanConfig()
@@ -445,7 +449,9 @@ def test_patch_normals_keep_grasp_axes_square_to_a_noisy_round_part(seed):
     assert cfg.grasp_config.num_grasps == base.grasp_config.num_grasps
     assert cfg.spread_grasp_config == base.spread_grasp_config  # the rim fallback keeps RSRD's rule
     with pytest.raises(ValueError, match="normal_radius"):
-        sample_antipodal_grasps(mesh, jax.random.key(seed), GraspConfig(normal_radius=float("nan")))
+        sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(normal_radius=float("nan")))
+    with pytest.raises(ValueError, match="normal_radius"):
+        sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(normal_radius=-0.001))
 
 
 def test_patch_normals_do_not_mix_the_sides_of_a_thin_plate_or_a_box_edge():

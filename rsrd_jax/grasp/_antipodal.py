@@ -220,7 +220,7 @@ class _Params(eqx.Module):
 
 def _sample_impl(
     tri: Float[Array, "f 3 3"],
-    face_normal: Float[Array, "f 3"],
+    normal: Float[Array, "f 3"],
     face_weight: Float[Array, " f"],
     centroid: Float[Array, "3"],
     radius: Float[Array, ""],
@@ -233,8 +233,7 @@ def _sample_impl(
 ) -> PartGrasps:
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     cross = jnp.cross(e1, e2)
-    area = 0.5 * jnp.linalg.norm(cross, axis=-1)
-    normal = face_normal
+    area = 0.5 * jnp.linalg.norm(cross, axis=-1)  # contact normals: `normal` (patch_normals, host)
 
     k_face, k_bary, k_cone = jax.random.split(key, 3)
     face = jax.random.choice(k_face, tri.shape[0], (num_samples,), p=area * face_weight / jnp.sum(area * face_weight))
