@@ -264,6 +264,8 @@ def main(argv=None) -> int:
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--square-grasps", action="store_true",
                     help="PipelineConfig.plan_square_grasps (prefer square pinches)")
+    ap.add_argument("--square-cone", type=float, default=PipelineConfig.plan_square_cone_deg, metavar="DEG",
+                    help="PipelineConfig.plan_square_cone_deg: the friction cone of --square-grasps (degrees)")
     ap.add_argument("--build-size", choices=("pipeline", "default"), default="pipeline",
                     help="scan and ObjectModel sizes: the pipeline's (16 views 160×120, 400 fit + 300 field iterations, "
                          "6000 Gaussians, as `rsrd-jax demo`) or the library's defaults (48 views 320×240, 1000 + 600, "
@@ -282,7 +284,8 @@ def main(argv=None) -> int:
         sizes = {} if a.build_size == "pipeline" else DEFAULT_BUILD_SIZES
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
                              plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight,
-                             plan_hand_grasps=a.hand_grasps, plan_square_grasps=a.square_grasps, **sizes)  # fmt: skip
+                             plan_hand_grasps=a.hand_grasps, plan_square_grasps=a.square_grasps,
+                             plan_square_cone_deg=a.square_cone, **sizes)  # fmt: skip
         commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
         res["config"]["commit"] = commit

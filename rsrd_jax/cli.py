@@ -318,7 +318,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
     )  # fmt: skip
     if a.square_grasps:
-        cfg = cfg.with_square_grasps()
+        cfg = cfg.with_square_grasps(cone_deg=a.square_cone)
     t0 = time.perf_counter()
     robot = load_yumi()
     plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
@@ -532,8 +532,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--grasp-keyframe-weight", type=float, default=3.0,
                     help="weight of the first keyframe's (the grasp's) pose rows relative to the others")
     pl.add_argument("--square-grasps", action="store_true",
-                    help="prefer square pinches: contact normals averaged over 8 mm, contacts within 15 deg of the "
+                    help="prefer square pinches: contact normals averaged over 8 mm, contacts within --square-cone deg of the "
                          "axis (PlanConfig.with_square_grasps; the spread set keeps RSRD's rule)")  # fmt: skip
+    pl.add_argument("--square-cone", type=float, default=15.0, metavar="DEG",
+                    help="the friction cone of --square-grasps (degrees; 45 = RSRD's cone with patch normals)")
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,

@@ -111,7 +111,11 @@ class PipelineConfig:
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
     plan_square_grasps: bool = False
     """Prefer square pinches (`PlanConfig.with_square_grasps`: contact normals averaged over
-    8 mm, contacts within 15° of the axis; the spread set keeps RSRD's rule)."""
+    8 mm, contacts within `plan_square_cone_deg` of the axis; the spread set keeps RSRD's rule)."""
+    plan_square_cone_deg: float = 15.0
+    """With `plan_square_grasps`: the friction cone (degrees) of the best-scored and near-hand
+    grasp samplings. Session 35, tracked frog over 10 table orientations: 45° (RSRD's cone, patch
+    normals only) 10/10 end to end, 15° 5/10 (`experiments/results/robot_trials_s3{5,4}_frog*.md`)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02
@@ -122,6 +126,10 @@ class PipelineConfig:
     """Write sim.mp4 of the simulated robot."""
     rerun: bool = True
     """Write rerun recordings of the stages."""
+
+    def __post_init__(self):
+        if not 0.0 < self.plan_square_cone_deg < 90.0:  # also refuses NaN
+            raise ValueError(f"plan_square_cone_deg: expected degrees in (0, 90), got {self.plan_square_cone_deg}")
 
     def build_config(self):
         """The `BuildConfig` of the pipeline's object model (also used by the experiments and
@@ -186,7 +194,7 @@ def _plan_config(cfg: PipelineConfig) -> PlanConfig:
 
     out = PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
                      grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight)
-    return out.with_square_grasps() if cfg.plan_square_grasps else out
+    return out.with_square_grasps(cone_deg=cfg.plan_square_cone_deg) if cfg.plan_square_grasps else out
 
 
 def anchored_hand_points(traj) -> list[tuple[int, np.ndarray]]:

@@ -448,6 +448,17 @@ def test_square_grasps_switch_and_bad_normal_radius():
         assert (g.normal_radius, g.friction_angle_deg) == (0.008, 15.0)
     assert cfg.grasp_config.num_grasps == base.grasp_config.num_grasps
     assert cfg.spread_grasp_config == base.spread_grasp_config  # the rim fallback keeps RSRD's rule
+    from rsrd_jax.pipeline import PipelineConfig, _plan_config
+
+    wide = _plan_config(PipelineConfig(plan_square_grasps=True, plan_square_cone_deg=45.0))
+    assert (wide.grasp_config.normal_radius, wide.grasp_config.friction_angle_deg) == (0.008, 45.0)
+    assert wide.spread_grasp_config == base.spread_grasp_config
+    assert _plan_config(PipelineConfig(plan_square_cone_deg=45.0)).grasp_config == base.grasp_config  # switch off
+    for bad in (0.0, 90.0, float("nan")):
+        with pytest.raises(ValueError, match="cone"):
+            PipelineConfig(plan_square_grasps=True, plan_square_cone_deg=bad)
+        with pytest.raises(ValueError, match="cone_deg"):
+            base.with_square_grasps(cone_deg=bad)
     with pytest.raises(ValueError, match="normal_radius"):
         sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(normal_radius=float("nan")))
     with pytest.raises(ValueError, match="normal_radius"):

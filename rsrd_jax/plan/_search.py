@@ -241,6 +241,8 @@ class PlanConfig(eqx.Module):
         does not turn a round or tilted part as the jaw closes; the spread set (tier 1, used only
         when none of those survives) keeps RSRD's rule (single-face normals, 45°) for parts held
         at a rim (a lid's lip, a panel's edge)."""
+        if not 0.0 < cone_deg < 90.0:  # also refuses NaN
+            raise ValueError(f"cone_deg: expected degrees in (0, 90), got {cone_deg}")
         sq = lambda g: None if g is None else dataclasses.replace(  # noqa: E731
             g, normal_radius=float(normal_radius), friction_angle_deg=float(cone_deg))
         return dataclasses.replace(self, grasp_config=sq(self.grasp_config), hand_grasp_config=sq(self.hand_grasp_config))
