@@ -115,7 +115,8 @@ class PipelineConfig:
     plan_square_cone_deg: float = 15.0
     """With `plan_square_grasps`: the friction cone (degrees) of the best-scored and near-hand
     grasp samplings. Session 35, tracked frog over 10 table orientations: 45° (RSRD's cone, patch
-    normals only) 10/10 end to end, 15° 5/10 (`experiments/results/robot_trials_s3{5,4}_frog*.md`)."""
+    normals only) 10/10 end to end, 15° 5/10 (`experiments/results/robot_trials_s35_frog_cone45.md`,
+    `robot_trials_s34_frog_square.md`)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
     init_position_tol_m: float = 0.02

@@ -438,9 +438,11 @@ def test_patch_normals_keep_grasp_axes_square_to_a_noisy_round_part(seed):
     assert np.median(patch) < 0.5 * np.median(one)
 
 
-def test_square_grasps_switch_and_bad_normal_radius():
+def test_square_grasps_switch_cone_and_bad_inputs():
     """The planner's switch sets patch normals and the narrow cone on its best-scored and
-    near-hand samplings only; a radius that is not a number >= 0 is refused before sampling."""
+    near-hand samplings only, the pipeline passes its cone (`plan_square_cone_deg`) through only
+    when the switch is on; a radius that is not a number >= 0 and a cone outside (0°, 90°) are
+    refused before sampling."""
     from rsrd_jax.plan import PlanConfig
 
     cfg, base = PlanConfig().with_square_grasps(), PlanConfig()
