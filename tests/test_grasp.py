@@ -442,7 +442,7 @@ def test_square_grasps_switch_cone_and_bad_inputs():
     """The planner's switch sets patch normals and the narrow cone on its best-scored and
     near-hand samplings only, the pipeline passes its cone (`plan_square_cone_deg`) through only
     when the switch is on; a radius that is not a number >= 0 and a cone outside (0°, 90°) are
-    refused before sampling."""
+    refused by the sampler, and the cone already by the planner's and the pipeline's configs."""
     from rsrd_jax.plan import PlanConfig
 
     cfg, base = PlanConfig().with_square_grasps(), PlanConfig()
@@ -465,6 +465,9 @@ def test_square_grasps_switch_cone_and_bad_inputs():
         sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(normal_radius=float("nan")))
     with pytest.raises(ValueError, match="normal_radius"):
         sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(normal_radius=-0.001))
+    for bad in (0.0, 90.0, float("nan")):  # the sampler itself refuses a cone that admits nothing or everything
+        with pytest.raises(ValueError, match="friction_angle_deg"):
+            sample_antipodal_grasps(_exact_box_mesh(), jax.random.key(0), GraspConfig(friction_angle_deg=bad))
 
 
 def test_patch_normals_do_not_mix_the_sides_of_a_thin_plate_or_a_box_edge():

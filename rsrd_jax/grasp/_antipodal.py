@@ -419,6 +419,8 @@ def sample_antipodal_grasps(
         weight[:n_f] = dist <= radius
     if not config.normal_radius >= 0:
         raise ValueError(f"config.normal_radius: expected >= 0 (m), got {config.normal_radius}")
+    if not 0 < config.friction_angle_deg < 90:  # also refuses NaN
+        raise ValueError(f"config.friction_angle_deg: expected degrees in (0, 90), got {config.friction_angle_deg}")
     normal = patch_normals(tri, config.normal_radius).astype(np.float32)
     return _sample(
         jnp.asarray(tri), jnp.asarray(normal), jnp.asarray(weight), jnp.asarray(centroid, jnp.float32), jnp.asarray(radius, jnp.float32), key,
