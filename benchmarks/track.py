@@ -53,7 +53,8 @@ def _track_case(studio: str, model_dir: str, frames: int, repeat: int, cfg: dict
         t = traj.meta["timings_s"]
         runs.append({"frames": traj.num_frames, "timings_s": t, "frames_per_second": traj.meta["frames_per_second"],
                      "frames_per_second_with_compile": traj.meta["frames_per_second_with_compile"],
-                     "add_obj_mm": add["add_obj_mm"], "mean_add_obj_mm": add["mean_add_obj_mm"]})  # fmt: skip
+                     "add_obj_mm": add["add_obj_mm"], "mean_add_obj_mm": add["mean_add_obj_mm"],
+                     "render_budgets": traj.meta["render_budgets"], "render_budget_growths": len(traj.meta["render_budget_growths"])})  # fmt: skip
     return {"runs": runs, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
@@ -107,6 +108,7 @@ def run(quick: bool) -> list[dict]:
                 m = {"frames_per_second": r["frames_per_second"], "frames_per_second_with_compile": r["frames_per_second_with_compile"],
                      "init_s": t["init_s"], "init_compile_s": t.get("init_compile_s"),
                      "init_run_s": t["init_s"] - t.get("init_compile_s", 0.0), "add_obj_mm": r["add_obj_mm"], "mean_add_obj_mm": r["mean_add_obj_mm"],
+                     "render_budget_growths": r["render_budget_growths"], **r["render_budgets"],
                      **{f"t_{k2}": v for k2, v in t.items()}}  # fmt: skip
                 rec = record(NAME, case, 1e3 / max(r["frames_per_second"], 1e-9), compile_s, m)
                 rec["peak_rss_mb"] = res["peak_rss_mb"]

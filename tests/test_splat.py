@@ -306,6 +306,12 @@ def test_choose_config_is_exact():
         out = render(g, cam, cfg)
         assert not bool(jnp.any(out.tile_truncated))
         _assert_matches_reference(out, _reference(g, cam, None))
+    # separate margins for the list capacity and the pair budget; the chunk budget keeps `headroom`
+    wide = choose_config(g, cams, tile_size=8, chunk_size=16, headroom=1.0, capacity_headroom=2.0, pairs_headroom=3.0)
+    assert cfg.capacity < wide.capacity <= 2 * cfg.capacity and 2 * cfg.max_pairs <= wide.max_pairs <= 3 * cfg.max_pairs + 1024
+    assert wide.max_chunks >= cfg.max_chunks  # a larger capacity keeps more entries of the fullest tiles
+    with pytest.raises(ValueError, match="capacity_headroom"):
+        choose_config(g, cams, capacity_headroom=0.5)
 
 
 def test_vmap_over_cameras_and_no_retrace():

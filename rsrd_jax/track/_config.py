@@ -264,6 +264,15 @@ class TrackConfig(eqx.Module):
     field decoder by ~50 % of their norm (the colour/alpha by ~2 %). None: no merge."""
     max_gaussians: int = 12000
     """Gaussians used for tracking (a fixed random subset if the model has more after merging)."""
+    render_headroom: float = 1.25
+    """Margin (≥ 1) of the rasterizer's chunk budget (`splat.choose_config`) over what the first
+    frame's ROI render needs; its list capacity and pair budget, which cost little, get twice
+    this margin. A frame whose final render is not exact under the budgets (a truncated tile,
+    dropped pairs) widens them at its solved pose and is solved again (one more compilation;
+    listed in `meta["render_budget_growths"]`), so a small margin costs no accuracy. The
+    per-step cost follows the chunk budget, not the real counts: on nerf_gun (robot trials'
+    build, frame 40) a 50-step solve took 0.57 s with 2.0 for every budget (the margin before
+    session 36), 0.34 s with 1.25."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 

@@ -215,6 +215,9 @@ class Rendered(eqx.Module):
     rgb: Float[Array, "h w 3"]
     part_weight: Float[Array, "h w p"]
     means: Float[Array, "n 3"]
+    truncated: Int[Array, ""]
+    """Tiles whose dropped list entries or chunks could have changed a pixel, plus the (Gaussian,
+    tile) pairs dropped beyond the pair budget: 0 when the render is exact under its budgets."""
 
 
 def render_posed(
@@ -232,7 +235,8 @@ def render_posed(
     dec = decode_rendered(tm.decoder, out.features[..., :F], out.alpha)
     a = out.alpha[..., None]
     feats = a * dec + (1.0 - a) * bg_feature
-    return Rendered(feats, out.depth, out.alpha, out.rgb, out.features[..., F:], posed.means)
+    truncated = jnp.sum(out.tile_truncated).astype(jnp.int32) + out.pairs_overflow.astype(jnp.int32)
+    return Rendered(feats, out.depth, out.alpha, out.rgb, out.features[..., F:], posed.means, truncated)
 
 
 class FrameObs(eqx.Module):
@@ -352,7 +356,8 @@ def frame_objective(
     pw = r.part_weight * obs.weight[..., None]
     part_res = jnp.einsum("hw,hwp->p", err, pw) / jnp.maximum(pw.sum((0, 1)), 1e-6)
     part_vis = pw.sum((0, 1)) / jnp.maximum(r.part_weight.sum((0, 1)), 1e-6)
-    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "hinge": l_hinge, "support": l_support, "hand": l_hand, "hand_depth": l_hand_depth, "part_residual": part_res, "part_visible": part_vis}
+    aux = {"feature": l_feat, "rgb": l_rgb, "rank": l_rank, "arap": l_arap, "touch": l_touch, "slide": l_slide, "hinge": l_hinge, "support": l_support, "hand": l_hand, "hand_depth": l_hand_depth, "part_residual": part_res, "part_visible": part_vis,
+           "render_truncated": r.truncated}
     return total, aux
 
 

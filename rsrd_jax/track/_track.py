@@ -21,7 +21,7 @@ from ._config import InitConfig, TrackConfig
 from ._dpm import TrackModel, Weights, compose_update, contact_pivots, extrapolate, lr_schedule, smooth_step, solve_frame, stack_obs
 from ._joints import (fit_joint_point, hand_hinge_residual, hand_slide_residual, hinge_axis, is_slide_candidate, joint_slots, relative_turn_deg,
                       slide_axes, slide_directions, with_joint_slots)
-from ._init import initialize_pose
+from ._init import initialize_pose, widest
 from ._hands import HandAnchors, surface_depths, update_hand_anchors, with_hand_anchors, with_hand_depth_offset
 from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observer, OccluderSource, full_frame_box, plane_depth, roi_box
 
@@ -112,6 +112,8 @@ def initialize_demo(
     Returns:
         (`T_cam_obj` on frame 0, the initialiser's diagnostics with `init_s`, the wall time).
     """
+    if not config.render_headroom >= 1.0 or not np.isfinite(config.render_headroom):
+        raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     t0 = time.perf_counter()
@@ -155,6 +157,8 @@ def track_video(
         PartTrajectory with per-frame part poses, object pose, residuals and metadata
         (timings: init, per-frame, smoothing, compile).
     """
+    if not config.render_headroom >= 1.0 or not np.isfinite(config.render_headroom):
+        raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     f = np.asarray(demo.frames)
@@ -200,7 +204,10 @@ def track_video(
     lrs = lr_schedule(config.lr_start, config.lr_end, config.steps_per_frame)
     box0 = _roi_for(tm, rest, T_cam_obj, K, config.roi_margin)
     posed0 = apply_part_poses(tm.gaussians, rest, tm.part_centroids)
-    rcfg = choose_config(posed0, Camera(obsr.grid_intrinsics(box0), T_cam_obj), headroom=2.0)
+    # the render budgets, widened where a frame's render was not exact (`TrackConfig.render_headroom`)
+    budgets = dict(headroom=config.render_headroom, capacity_headroom=2.0 * config.render_headroom, pairs_headroom=2.0 * config.render_headroom)
+    rc = [choose_config(posed0, Camera(obsr.grid_intrinsics(box0), T_cam_obj), **budgets)]
+    growths: list[dict] = []
     key = jax.random.key(config.seed)
 
     use_hands = fingertips is not None and config.weights.hand > 0
@@ -232,17 +239,36 @@ def track_video(
             raw = obs
             obs = with_hand_depth_offset(obs, offset)
             key, sub = jax.random.split(key)
+
+            def solve(T_guess=T_guess, obs=obs, sub=sub, prev=prev, prev2=prev2):
+                T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rc[0], config.rank_pairs)
+                truncated, second = int(aux["render_truncated"]), False
+                if vh is not None and prev2 is not None:
+                    # a second start (e.g. full constant velocity) on the same observations and
+                    # pair sample: the lower final loss wins
+                    T2, aux2 = solve_frame(tm, extrapolate(prev, prev2, vh), T_cam_obj, obs, w, lrs, sub, rc[0], config.rank_pairs)
+                    truncated = max(truncated, int(aux2["render_truncated"]))
+                    if float(aux2["loss"]) < float(aux["loss"]):
+                        T, aux, second = T2, aux2, True
+                return jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz)), aux, truncated, second
+
             tf = time.perf_counter()
-            T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
-            if vh is not None and prev2 is not None:
-                # a second start (e.g. full constant velocity) on the same observations and pair
-                # sample: the lower final loss wins
-                T2, aux2 = solve_frame(tm, extrapolate(prev, prev2, vh), T_cam_obj, obs, w, lrs, sub, rcfg, config.rank_pairs)
-                if float(aux2["loss"]) < float(aux["loss"]):
-                    T, aux = T2, aux2
-                    switched += 1
-            T = jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz))
+            T, aux, truncated, second = solve()
             solve_s.append(time.perf_counter() - tf)
+            if truncated:
+                # the budgets were too small at this frame's solution: widen them there (one more
+                # compilation, reported as such) and solve the frame again
+                grown = widest(rc[0], choose_config(apply_part_poses(tm.gaussians, T, tm.part_centroids),
+                                                    Camera(obs.intrinsics, T_cam_obj), **budgets))  # fmt: skip
+                if grown is not rc[0]:
+                    before, rc[0] = rc[0], grown
+                    tg = time.perf_counter()
+                    T, aux, truncated, second = solve()
+                    typical = float(np.median(solve_s[1:])) if len(solve_s) > 1 else 0.0
+                    compile_s[0] += max(time.perf_counter() - tg - typical, 0.0)
+                    growths.append({"pass": desc, "frame": t, **{k: [getattr(before, k), getattr(grown, k)] for k in ("capacity", "max_chunks", "max_pairs")},
+                                    "still_truncated": bool(truncated)})  # fmt: skip
+            switched += int(second)
             if use_hands:
                 known = (np.asarray(raw.hand_depth_seen) > 0) & anchors.anchored & ~np.isfinite(offset)
                 if known.any():
@@ -320,7 +346,7 @@ def track_video(
             frames = jnp.asarray(rng.choice(demo.num_frames, B, replace=False), jnp.int32)
             key, sub = jax.random.split(key)
             ts = time.perf_counter()
-            val, g = jax.block_until_ready(smooth_step(tm, delta, T_stack, T_cam_obj, obs_b, w, frames, sw, sub, rcfg, config.rank_pairs))
+            val, g = jax.block_until_ready(smooth_step(tm, delta, T_stack, T_cam_obj, obs_b, w, frames, sw, sub, rc[0], config.rank_pairs))
             step_s.append(time.perf_counter() - ts)
             g = jnp.where(jnp.isfinite(g), g, 0.0)
             upd, state = opt.update(g, state)
@@ -347,7 +373,9 @@ def track_video(
         "timings_s": timings,
         "frames_per_second": demo.num_frames / max(run_s, 1e-9),
         "frames_per_second_with_compile": demo.num_frames / max(timings["frames_s"] + timings["smooth_s"], 1e-9),
-        "render_capacity": rcfg.capacity,
+        "render_capacity": rc[0].capacity,
+        "render_budgets": {"capacity": rc[0].capacity, "max_chunks": rc[0].max_chunks, "max_pairs": rc[0].max_pairs},
+        "render_budget_growths": growths,
         "occluder": getattr(obsr.occluder, "name", "?"),
         "mono_depth": getattr(obsr.mono, "name", "?"),
         "hand_depth_table": obsr.table_depth is not None,
