@@ -112,8 +112,6 @@ def initialize_demo(
     Returns:
         (`T_cam_obj` on frame 0, the initialiser's diagnostics with `init_s`, the wall time).
     """
-    if not config.render_headroom >= 1.0 or not np.isfinite(config.render_headroom):
-        raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     t0 = time.perf_counter()
