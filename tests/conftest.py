@@ -26,3 +26,15 @@ def key() -> jax.Array:
 def rng() -> np.random.Generator:
     """A fixed numpy generator."""
     return np.random.default_rng(0)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_code():
+    """Drops JAX's in-memory compilation caches after each test module. Every compiled XLA CPU
+    executable keeps memory mappings; the suite in one process compiles thousands of programs
+    (each test size and render budget is its own), and in session 36 it crashed twice inside
+    XLA compilation (an abort, then a segmentation fault) in a late test of test_track.py that
+    passed on its own: the kernel's limit is 65530 mappings per process (vm.max_map_count), and
+    one module alone reaches 28.7k (measured with this fixture, over the whole default run)."""
+    yield
+    jax.clear_caches()
