@@ -34,7 +34,8 @@ def _release_compiled_code():
     executable keeps memory mappings; the suite in one process compiles thousands of programs
     (each test size and render budget is its own), and in session 36 it crashed twice inside
     XLA compilation (an abort, then a segmentation fault) in a late test of test_track.py that
-    passed on its own: the kernel's limit is 65530 mappings per process (vm.max_map_count), and
-    one module alone reaches 28.7k (measured with this fixture, over the whole default run)."""
+    passed on its own, most likely at the kernel's limit of 65530 mappings per process
+    (vm.max_map_count): with this fixture the most any module reached was 28.7k (whole default
+    run), and the run passes."""
     yield
     jax.clear_caches()
