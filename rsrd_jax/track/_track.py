@@ -371,7 +371,6 @@ def track_video(
         "timings_s": timings,
         "frames_per_second": demo.num_frames / max(run_s, 1e-9),
         "frames_per_second_with_compile": demo.num_frames / max(timings["frames_s"] + timings["smooth_s"], 1e-9),
-        "render_capacity": rc[0].capacity,
         "render_budgets": {"capacity": rc[0].capacity, "max_chunks": rc[0].max_chunks, "max_pairs": rc[0].max_pairs},
         "render_budget_growths": growths,
         "occluder": getattr(obsr.occluder, "name", "?"),
