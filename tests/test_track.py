@@ -158,6 +158,33 @@ def test_velocity_hypothesis_keeps_the_lower_loss(studio):
     assert two.loss[2] <= one.loss[2] * (1 + 1e-6), (one.loss, two.loss)
     assert 0 <= two.meta["velocity_hypothesis_frames"] <= demo.num_frames - 2
     assert one.meta["velocity_hypothesis_frames"] == 0
+    # the two starts solved one after the other instead of at once: the same trajectory
+    seq = run(dataclasses.replace(cfg, velocity_hypothesis=1.0, parallel_starts=False))
+    np.testing.assert_allclose(seq.T_obj_part, two.T_obj_part, atol=1e-6)
+    np.testing.assert_allclose(seq.loss, two.loss, rtol=1e-6)
+
+
+def test_rebinning_every_few_steps_tracks_as_binning_every_step(studio):
+    """`TrackConfig.rebin_every`: the steps between two binnings render on stale per-tile lists;
+    the tracked points end within a small fraction of how far they moved of where binning
+    every step puts them, and the frames' final losses (binned afresh) agree."""
+    root, model, ext = studio
+    demo = read_demo(root / "demo" / "demo.mp4")
+    T0 = jaxlie.SE3(jnp.asarray(read_demo_gt(root / "demo")["T_cam_world_part"][0, 0], jnp.float32))
+    cfg = dataclasses.replace(TINY, smooth_iters=0, steps_per_frame=20, joints=False)
+    run = lambda c: track_video(model, demo, c, TINY_INIT, StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),  # noqa: E731
+                                extractor=ext, progress=False, T_cam_obj_init=T0)  # fmt: skip
+    every, fifth = run(dataclasses.replace(cfg, rebin_every=1)), run(dataclasses.replace(cfg, rebin_every=5))
+    means = np.asarray(model.gaussians.means)
+    pts = lambda tr: np.stack([np.asarray(jaxlie.SE3(jnp.asarray(T, jnp.float32)).apply(jnp.asarray(means)))  # noqa: E731
+                               for T in tr.T_cam_world_part.reshape(-1, 7)])  # fmt: skip
+    moved = np.linalg.norm(pts(every) - np.tile(pts(every)[: model.num_parts], (demo.num_frames, 1, 1)), axis=-1).max()
+    apart = np.linalg.norm(pts(fifth) - pts(every), axis=-1).max()
+    assert moved > 2e-3 and apart < 0.1 * moved, (moved, apart)
+    np.testing.assert_allclose(fifth.loss, every.loss, rtol=0.02)
+    for bad in (0, -1):
+        with pytest.raises(ValueError, match="rebin_every"):
+            run(dataclasses.replace(cfg, rebin_every=bad))
 
 
 def test_render_budgets_too_small_for_a_frame_are_widened_and_the_frame_solved_again(studio, monkeypatch):

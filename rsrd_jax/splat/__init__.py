@@ -28,6 +28,7 @@ from ._raster import (
     RenderOutput as RenderOutput,
     Bins as Bins,
     bin_gaussians as bin_gaussians,
+    bins_for as bins_for,
     choose_config as choose_config,
     render as render,
 )

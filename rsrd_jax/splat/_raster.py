@@ -298,12 +298,20 @@ def _untile(x: jax.Array, camera: Camera, ts: int) -> jax.Array:
     return x[: camera.height, : camera.width]
 
 
+def bins_for(gaussians: Gaussians, camera: Camera, config: RenderConfig = RenderConfig()) -> Bins:
+    """The per-tile lists `render` would build for `gaussians` seen by `camera` (no gradient):
+    pass them to `render(..., bins=)` to render Gaussians that have since moved a little
+    without binning again (traceable; jit the caller)."""
+    return bin_gaussians(materialise(project_gaussians(gaussians, camera)), camera, config)
+
+
 @eqx.filter_jit
 def render(
     gaussians: Gaussians,
     camera: Camera,
     config: RenderConfig = RenderConfig(),
     background: Float[Array, "3"] | None = None,
+    bins: Bins | None = None,
 ) -> RenderOutput:
     """Renders RGB, features, depth and alpha of `gaussians` seen by `camera` in one pass.
 
@@ -316,6 +324,11 @@ def render(
         camera: intrinsics (static size H×W) and `T_cam_world` (OpenCV axes).
         config: tile size and static budgets (see `choose_config`).
         background: optional RGB added as (1 − alpha)·background.
+        bins: per-tile lists from `bins_for` at an earlier pose of the same Gaussians and camera
+            size, used instead of binning again (binning is most of a forward pass's cost on
+            CPU). An approximation once the Gaussians have moved: a Gaussian's footprint is
+            cut to the tiles it met then, and each tile keeps that depth order; the capacity
+            diagnostics are those of the earlier pose. None: bin these Gaussians (exact).
 
     Returns:
         `RenderOutput` (images H×W; capacity diagnostics per tile).
@@ -328,7 +341,11 @@ def render(
     F = gaussians.num_features
     # Stored once, else XLA recomputes the projection inside every element of the gathers below.
     proj = materialise(project_gaussians(gaussians, camera))
-    bins = bin_gaussians(proj, camera, config)
+    if bins is None:
+        bins = bin_gaussians(proj, camera, config)
+    elif bins.ids.shape != (config.max_chunks, config.chunk_size) or bins.counts.shape != (TX * TY,):
+        raise ValueError(f"bins for {bins.ids.shape[0]} chunks of {bins.ids.shape[1]} and {bins.counts.shape[0]} tiles do not fit "
+                         f"this render ({config.max_chunks} chunks of {config.chunk_size}, {TX * TY} tiles)")
     params, table, depth = _tile_inputs(gaussians, proj, bins, camera, ts)
     out, aux, saturated = composite_rows(params, table, depth, bins.ids, bins.layout, TX * TY, ts, kc)
     img = _untile(out, camera, ts)

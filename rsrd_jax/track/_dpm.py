@@ -19,7 +19,7 @@ from jaxtyping import Array, Float, Int
 
 from ..geometry import Camera, Intrinsics
 from ..parts import decode_rendered
-from ..splat import Gaussians, RenderConfig, apply_part_poses, render
+from ..splat import Bins, Gaussians, RenderConfig, apply_part_poses, bins_for, render
 from ._lod import merge_gaussians
 from ._losses import arap_loss, depth_ranking_loss, feature_loss, hand_depth_loss, hand_loss, pose_smoothness, prismatic_loss, revolute_loss, support_loss, touch_loss
 
@@ -227,10 +227,12 @@ def render_posed(
     intrinsics: Intrinsics,
     bg_feature: Float[Array, " d"],
     config: RenderConfig,
+    bins: Bins | None = None,
 ) -> Rendered:
-    """Renders the model with parts at `T_obj_part` seen from `T_cam_obj` at `intrinsics`' grid."""
+    """Renders the model with parts at `T_obj_part` seen from `T_cam_obj` at `intrinsics`' grid
+    (with `bins`: the per-tile lists of an earlier pose, `posed_bins`; see `splat.render`)."""
     posed = apply_part_poses(tm.gaussians, T_obj_part, tm.part_centroids)
-    out = render(posed, Camera(intrinsics, T_cam_obj), config, jnp.zeros(3))
+    out = render(posed, Camera(intrinsics, T_cam_obj), config, jnp.zeros(3), bins)
     F = tm.num_features
     dec = decode_rendered(tm.decoder, out.features[..., :F], out.alpha)
     a = out.alpha[..., None]
@@ -315,6 +317,12 @@ def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
     return -jax.lax.reduce_window(-mask, -jnp.inf, jax.lax.max, (3, 3), (1, 1), "SAME")
 
 
+def posed_bins(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, intrinsics: Intrinsics, config: RenderConfig) -> Bins:
+    """The rasterizer's per-tile lists of the model posed at `T_obj_part` (`splat.bins_for`)."""
+    posed = apply_part_poses(tm.gaussians, jax.lax.stop_gradient(T_obj_part), tm.part_centroids)
+    return bins_for(posed, Camera(intrinsics, jax.lax.stop_gradient(T_cam_obj)), config)
+
+
 def frame_objective(
     tm: TrackModel,
     T_obj_part: jaxlie.SE3,
@@ -324,9 +332,11 @@ def frame_objective(
     key: jax.Array,
     config: RenderConfig,
     num_pairs: int,
+    bins: Bins | None = None,
 ) -> tuple[Float[Array, ""], dict]:
-    """Per-frame loss of part poses `T_obj_part` (P) and its terms."""
-    r = render_posed(tm, T_obj_part, T_cam_obj, obs.intrinsics, obs.bg_feature, config)
+    """Per-frame loss of part poses `T_obj_part` (P) and its terms (with `bins`: rendered on the
+    per-tile lists of an earlier pose, see `splat.render`)."""
+    r = render_posed(tm, T_obj_part, T_cam_obj, obs.intrinsics, obs.bg_feature, config, bins)
     l_feat = feature_loss(r.features, obs.features, obs.weight)
     # full-ROI photometric L1 with the background colour composited behind the object (comparing
     # only inside the rendered silhouette would reward shrinking it)
@@ -384,29 +394,43 @@ def solve_frame(
     key: jax.Array,
     config: RenderConfig,
     num_pairs: int,
+    rebin_every: int = 1,
 ) -> tuple[jaxlie.SE3, dict]:
     """Per-frame Adam on tangent updates of every part pose: `T = T_init @ exp(δ)`, δ ∈ R^{P×6}
-    (about the part centroid, in the part frame). One compiled function per video."""
+    (about the part centroid, in the part frame). One compiled function per video.
+
+    `rebin_every` > 1: the rasterizer bins the Gaussians on the first of every `rebin_every`
+    steps and renders the following ones on those per-tile lists (`TrackConfig.rebin_every`);
+    the final render, which scores the result, is always binned afresh."""
     _trace_counts["frame"] += 1
+    if rebin_every < 1:
+        raise ValueError(f"rebin_every must be ≥ 1, got {rebin_every}")
     P = T_init.wxyz_xyz.shape[0]
     opt = optax.scale_by_adam()
 
-    def loss_fn(delta, k):
+    def loss_fn(delta, k, bins):
         T = compose_update(T_init, delta, tm.part_pivots)
-        loss, aux = frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs)
+        loss, aux = frame_objective(tm, T, T_cam_obj, obs, w, k, config, num_pairs, bins)
         return loss + w.motion * motion_prior(delta, w.step_scale), aux
 
+    def bins_at(delta):
+        return posed_bins(tm, compose_update(T_init, delta, tm.part_pivots), T_cam_obj, obs.intrinsics, config)
+
     def step(carry, xs):
-        delta, state = carry
-        lr, k = xs
-        (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(delta, k)
+        delta, state, bins = carry
+        lr, k, i = xs
+        if rebin_every > 1:
+            bins = jax.lax.cond((i > 0) & (i % rebin_every == 0), bins_at, lambda _: bins, delta)
+        (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(delta, k, bins)
         g = jnp.where(jnp.isfinite(g), g, 0.0)
         upd, state = opt.update(g, state)
-        return (delta - lr * w.step_scale * upd, state), loss
+        return (delta - lr * w.step_scale * upd, state, bins), loss
 
     delta0 = jnp.zeros((P, 6))
     keys = jax.random.split(key, lrs.shape[0] + 1)
-    (delta, _), losses = jax.lax.scan(step, (delta0, opt.init(delta0)), (lrs, keys[1:]))
+    bins0 = bins_at(delta0) if rebin_every > 1 else None
+    steps = jnp.arange(lrs.shape[0], dtype=jnp.int32)
+    (delta, _, _), losses = jax.lax.scan(step, (delta0, opt.init(delta0), bins0), (lrs, keys[1:], steps))
     T = compose_update(T_init, delta, tm.part_pivots)
     final, aux = frame_objective(tm, T, T_cam_obj, obs, w, keys[0], config, num_pairs)
     aux["loss"] = final

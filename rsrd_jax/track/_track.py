@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import equinox as eqx
@@ -29,6 +30,17 @@ from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observe
 SLIDE_HAND_FLOOR_PX = 1.0
 """Pixels added to `TrackConfig.slide_hand_ratio` × the hinge's residual before a slide hypothesis
 is ruled out by the hand (a tolerance for a pinch track that every hypothesis fits to a pixel)."""
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _start_pool() -> ThreadPoolExecutor:
+    """Two worker threads for the two starts of a frame (`TrackConfig.parallel_starts`)."""
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="rsrd-track-start")
+    return _POOL
 
 
 class _HandTrack(NamedTuple):
@@ -157,6 +169,8 @@ def track_video(
     """
     if not config.render_headroom >= 1.0 or not np.isfinite(config.render_headroom):
         raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
+    if config.rebin_every < 1:
+        raise ValueError(f"TrackConfig.rebin_every must be ≥ 1, got {config.rebin_every}")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     f = np.asarray(demo.frames)
@@ -214,11 +228,13 @@ def track_video(
         # the hand depth term's table: the support plane's depth along every pixel's ray
         obsr.table_depth = plane_depth(K, T_cam_obj, np.asarray(table, np.float64))
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
+    pool = _start_pool() if config.parallel_starts else None
 
     def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
         T_parts: list[jaxlie.SE3] = []
         obs_all, residual, visible, losses, data, logged = [], [], [], [], [], []
         switched = 0  # frames where the second start won
+        warm: set = set()  # render budgets the solve has run with in this pass (compiled)
         solve_s: list[float] = []
         anchors = HandAnchors.empty(obsr.fingertips.num_hands)
         # the hand depth term's calibration: each hand's depth read off the table is biased (the
@@ -239,16 +255,30 @@ def track_video(
             key, sub = jax.random.split(key)
 
             def solve(T_guess=T_guess, obs=obs, sub=sub, prev=prev, prev2=prev2):
-                T, aux = solve_frame(tm, T_guess, T_cam_obj, obs, w, lrs, sub, rc[0], config.rank_pairs)
-                truncated, second = int(aux["render_truncated"]), False
+                starts = [T_guess]
                 if vh is not None and prev2 is not None:
                     # a second start (e.g. full constant velocity) on the same observations and
                     # pair sample: the lower final loss wins
-                    T2, aux2 = solve_frame(tm, extrapolate(prev, prev2, vh), T_cam_obj, obs, w, lrs, sub, rc[0], config.rank_pairs)
+                    starts.append(extrapolate(prev, prev2, vh))
+                cfg = rc[0]
+
+                def run(T0):
+                    return jax.block_until_ready(solve_frame(tm, T0, T_cam_obj, obs, w, lrs, sub, cfg, config.rank_pairs, config.rebin_every))
+
+                if len(starts) > 1 and pool is not None and cfg in warm:
+                    # both starts at once, one thread each (`TrackConfig.parallel_starts`); only
+                    # once compiled for these budgets, so that no two threads trace it
+                    (T, aux), (T2, aux2) = pool.map(run, starts)
+                else:
+                    (T, aux), *rest = [run(T0) for T0 in starts]
+                    T2, aux2 = rest[0] if rest else (None, None)
+                warm.add(cfg)
+                truncated, second = int(aux["render_truncated"]), False
+                if T2 is not None:
                     truncated = max(truncated, int(aux2["render_truncated"]))
                     if float(aux2["loss"]) < float(aux["loss"]):
                         T, aux, second = T2, aux2, True
-                return jaxlie.SE3(jax.block_until_ready(T.wxyz_xyz)), aux, truncated, second
+                return jaxlie.SE3(T.wxyz_xyz), aux, truncated, second
 
             tf = time.perf_counter()
             T, aux, truncated, second = solve()
