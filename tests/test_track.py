@@ -43,7 +43,7 @@ def test_track_compiles_once_and_writes_a_valid_trajectory(studio, tmp_path):
     # the initialiser's stages (seeds, survivors, ROI refinement) share one compiled optimiser; a
     # second compile only when the ROI crop at the best pose needs a larger render budget than the
     # seeds' ROI crops measured beforehand (at this tiny size it may: a 3×3-tile grid; at pipeline
-    # sizes it did not on four demos)
+    # sizes it did not on five demos since the crop's need is compared without the margins)
     widened = traj.meta["init"]["render_config_widened_for_roi"]
     assert _init._trace_counts["seeds"] - seeds_before == 1 + int(widened)
     assert len(traj.meta["init"]["refined_losses"]) == TINY_INIT.keep_seeds
@@ -286,6 +286,23 @@ def test_init_recovers_a_yaw_from_each_seed_basin(studio, seed):
                                 lambda T: _roi_for(tm, rest, T, K, TINY.roi_margin))  # fmt: skip
     err = np.rad2deg(float(jnp.linalg.norm((T_true.rotation().inverse() @ res.T_cam_obj.rotation()).log())))
     assert err < 12.0, (err, info)
+
+
+def test_seed_batches_on_two_threads_give_the_batches_results_in_order():
+    """`_init.in_lanes(parallel=True)`: the batches after the first run on two threads; the
+    outputs are those of the batches run one after the other, in seed order (the last batch
+    padded and cut)."""
+    import jax
+
+    run = jax.jit(lambda T: (T.log() * 2.0, jnp.sum(T.wxyz_xyz, -1)))
+    rng = np.random.default_rng(0)
+    seeds = np.asarray(jaxlie.SE3.exp(jnp.asarray(rng.normal(size=(11, 6)) * 0.3, jnp.float32)).wxyz_xyz)
+    one = _init.in_lanes(run, seeds, 4, parallel=False)
+    two = _init.in_lanes(run, seeds, 4, parallel=True)
+    assert [x.shape for x in two] == [(11, 6), (11,)]
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(two[1], seeds.sum(-1), rtol=1e-6)
 
 
 def test_bad_demo_files_give_clear_errors(studio, tmp_path):

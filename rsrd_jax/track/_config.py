@@ -311,6 +311,9 @@ class InitConfig(eqx.Module):
     after 30 iterations in all four, and the seed stage costs 680 instead of 1280 seed-steps."""
     keep_seeds: int = 4
     """Seeds that continue after the screening iterations."""
+    parallel: bool = True
+    """Run the seed batches after the first (`keep_seeds` seeds each, vmapped) two at a time on
+    two threads (`rsrd_jax._threads`); the same results as one after the other."""
     refine_iters: int = 60
     """Iterations refining the best seeds on an ROI crop around the best: the `keep_seeds` lowest
     (one batch of the single compiled seed optimiser), each from its own pose; the lowest refined

@@ -361,7 +361,7 @@ def register_object(
     def optimise(T, obs_, schedule, md_, blob_, rcfg_):
         lr, steps = padded_schedule(schedule, L)
         return in_lanes(lambda Tb: _optimise(tm, Tb, cj, jnp.float32(radius), obs_, lr, steps, rcfg_, md_, blob_,
-                                             T_robot_cam, tz, weights), T, lanes)  # fmt: skip
+                                             T_robot_cam, tz, weights), T, lanes, init.parallel)  # fmt: skip
 
     Ts, losses, feats = optimise(T_seeds.wxyz_xyz, obs, lr_schedule(init.lr_start, init.lr_end, init.iters), md, blob_g, rcfg)
     order = np.argsort(losses)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import equinox as eqx
@@ -15,6 +14,7 @@ import optax
 from tqdm.auto import tqdm
 
 from .._cache import CompileClock
+from .._threads import worker_pool
 from ..geometry import Camera, project_points
 from ..io import ArtefactError, Demo, PartTrajectory
 from ..splat import apply_part_poses, choose_config, rest_part_poses
@@ -30,17 +30,6 @@ from ._observe import model_extractor, FingertipSource, MonoDepthSource, Observe
 SLIDE_HAND_FLOOR_PX = 1.0
 """Pixels added to `TrackConfig.slide_hand_ratio` × the hinge's residual before a slide hypothesis
 is ruled out by the hand (a tolerance for a pinch track that every hypothesis fits to a pixel)."""
-
-
-_POOL: ThreadPoolExecutor | None = None
-
-
-def _start_pool() -> ThreadPoolExecutor:
-    """Two worker threads for the two starts of a frame (`TrackConfig.parallel_starts`)."""
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="rsrd-track-start")
-    return _POOL
 
 
 class _HandTrack(NamedTuple):
@@ -228,7 +217,7 @@ def track_video(
         # the hand depth term's table: the support plane's depth along every pixel's ray
         obsr.table_depth = plane_depth(K, T_cam_obj, np.asarray(table, np.float64))
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
-    pool = _start_pool() if config.parallel_starts else None
+    pool = worker_pool() if config.parallel_starts else None
 
     def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
         T_parts: list[jaxlie.SE3] = []
