@@ -210,14 +210,19 @@ class TrackConfig(eqx.Module):
     discovery, lr 1e-2, the robot trials' builds): led_light's lid 29.7 → 10.9 mm, sunglasses'
     folding arm 59.8 → 45.7 mm, but red_box's lid 5.5 → 10.4 mm and frog's mean 3.8 → 4.2 mm
     (a lower frame loss is not always the truer pose); off by default."""
-    rebin_every: int = 5
+    rebin_every: int = 1
     """The per-frame solve bins the Gaussians into the rasterizer's tiles on the first of every
     this many Adam steps and renders the steps between on those per-tile lists (`splat.render(
     bins=)`: each Gaussian keeps the tiles it met and its depth rank there); the final render,
     which scores the frame and checks the budgets, is binned afresh. 1: every step binned.
     Binning (depth sort, pair sort, chunk lists) is a fifth of a step on CPU. Measured on
     nerf_gun (a captured frame, 50 steps, the parts moved 4.8 mm): 1 → 412 ms, 5 → 320 ms,
-    10 → 309 ms per solve; solved points within 0.06 mm (5) and 0.08 mm (10) of 1's."""
+    10 → 309 ms per solve; solved points within 0.06 mm (5) and 0.08 mm (10) of 1's. With 5
+    over the 11 robot-trial builds (session 37): 1.51–2.29 frames/s without slide hypotheses
+    (1.30–1.96 with 1), nerf_gun 0.83; the object-frame ADD of the 10 others 4.28 mm on average
+    (4.30 with 1, each within ±1.1 mm), but toy_drawer's slide, which had won its comparison by
+    1.0 % of the data loss, won it by 0.26 % (< `slide_min_gain`), and its drawer was tracked on
+    the joint point: 4.86 → 13.87 mm. Off by default until that choice is robust."""
     parallel_starts: bool = True
     """Solve a frame's two starts (`velocity_hypothesis`, `slide_velocity`) at once, one thread
     each; the same results as one after the other. XLA's CPU runtime runs one solve on about
