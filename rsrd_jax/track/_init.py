@@ -372,10 +372,7 @@ def initialize_pose(
 
     def render_config(views, headroom=1.5):
         posed = apply_part_poses(tm.gaussians, rest_part_poses(tm.part_centroids), tm.part_centroids)
-        # the list capacity with twice the margin: it costs little, and a refinement crop that
-        # needs more than the seeds' config holds widens it and compiles the optimiser again
-        # (7 s; nerf_gun's ROI needed K 2592 against the seeds' 2336 at 1.5)
-        return choose_config(posed, [Camera(intr, jaxlie.SE3(T)) for T, intr in views], headroom=headroom, capacity_headroom=2 * headroom)
+        return choose_config(posed, [Camera(intr, jaxlie.SE3(T)) for T, intr in views], headroom=headroom)
 
     def seed_crop(d: float):
         # a crop around the located region (the object fills it, unlike the whole frame), sized
@@ -422,10 +419,12 @@ def initialize_pose(
     box = roi_box_fn(T_best)
     obs_roi = observe(box)
     md_roi = jnp.asarray(crop(metric_depth_full.astype(np.float32), box, g, 0)) if metric_depth_full is not None else None
+    # the seeds' config serves the refinement unless the crop needs more than it holds (compared
+    # without the margin: with it nerf_gun's crop asked for K 2592 against the seeds' 2336 and
+    # compiled the optimiser a second time, 7 s)
     need = render_config([(T_best.wxyz_xyz, obs_roi.intrinsics)], headroom=1.0)
     cfg_seeds = cfg_render
     if any(getattr(need, k) > getattr(cfg_seeds, k) for k in ("capacity", "max_chunks", "max_pairs")):
-        # the crop needs more than the seeds' config holds: widened (with the usual margins)
         cfg_render = widest(cfg_render, render_config([(T_best.wxyz_xyz, obs_roi.intrinsics)]))
     recompiled = cfg_render is not cfg_seeds
     lrs2 = lr_schedule(cfg.lr_end, cfg.lr_end * 0.5, cfg.refine_iters)
