@@ -171,7 +171,8 @@ def test_rebinning_every_few_steps_tracks_as_binning_every_step(studio):
     root, model, ext = studio
     demo = read_demo(root / "demo" / "demo.mp4")
     T0 = jaxlie.SE3(jnp.asarray(read_demo_gt(root / "demo")["T_cam_world_part"][0, 0], jnp.float32))
-    cfg = dataclasses.replace(TINY, smooth_iters=0, steps_per_frame=20, joints=False)
+    # 15 steps: a solve no other test of this module compiles (several assert their own compile)
+    cfg = dataclasses.replace(TINY, smooth_iters=0, steps_per_frame=15, joints=False)
     run = lambda c: track_video(model, demo, c, TINY_INIT, StudioHandMasks(root / "demo"), StudioDepthOracle(root / "demo"),  # noqa: E731
                                 extractor=ext, progress=False, T_cam_obj_init=T0)  # fmt: skip
     every, fifth = run(dataclasses.replace(cfg, rebin_every=1)), run(dataclasses.replace(cfg, rebin_every=5))
