@@ -318,9 +318,10 @@ def _erode(mask: Float[Array, "h w"]) -> Float[Array, "h w"]:
 
 
 def posed_bins(tm: TrackModel, T_obj_part: jaxlie.SE3, T_cam_obj: jaxlie.SE3, intrinsics: Intrinsics, config: RenderConfig) -> Bins:
-    """The rasterizer's per-tile lists of the model posed at `T_obj_part` (`splat.bins_for`)."""
-    posed = apply_part_poses(tm.gaussians, jax.lax.stop_gradient(T_obj_part), tm.part_centroids)
-    return bins_for(posed, Camera(intrinsics, jax.lax.stop_gradient(T_cam_obj)), config)
+    """The rasterizer's per-tile lists of the model posed at `T_obj_part` (`splat.bins_for`; no
+    gradient: binning stops it)."""
+    posed = apply_part_poses(tm.gaussians, T_obj_part, tm.part_centroids)
+    return bins_for(posed, Camera(intrinsics, T_cam_obj), config)
 
 
 def frame_objective(
