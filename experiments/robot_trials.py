@@ -262,6 +262,8 @@ def main(argv=None) -> int:
                     help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps)")
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
+    ap.add_argument("--scan-surface", action="store_true",
+                    help="plan on the part surfaces from the scan's depth (PipelineConfig.plan_scan_surface)")
     ap.add_argument("--square-grasps", action="store_true",
                     help="PipelineConfig.plan_square_grasps (prefer square pinches)")
     ap.add_argument("--square-cone", type=float, default=PipelineConfig.plan_square_cone_deg, metavar="DEG",
@@ -285,7 +287,7 @@ def main(argv=None) -> int:
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
                              plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight,
                              plan_hand_grasps=a.hand_grasps, plan_square_grasps=a.square_grasps,
-                             plan_square_cone_deg=a.square_cone, **sizes)  # fmt: skip
+                             plan_square_cone_deg=a.square_cone, plan_scan_surface=a.scan_surface, **sizes)  # fmt: skip
         commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)
         res["config"]["commit"] = commit

@@ -297,6 +297,16 @@ def cmd_plan(a: argparse.Namespace) -> int:
             return 2
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [np.asarray(model.part_points(k)) - cents[k] for k in range(model.num_parts)]
+        if a.scan_surface is not None:
+            from .parts import scan_surface_points
+
+            try:
+                surf = scan_surface_points(a.scan_surface, np.asarray(model.gaussians.means), np.asarray(model.gaussians.part_ids),
+                                           model.num_parts, views=model.meta.get("train_views"))  # fmt: skip
+            except ArtefactError as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            part_points = [p - cents[k] for k, p in enumerate(surf)]
         if a.extent_meshes:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
@@ -503,6 +513,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--studio-gt", default=None, metavar="DIR",
                     help="use a studio object's ground truth (scan/demo/robot_view) instead of MODEL and TRAJ")  # fmt: skip
     pl.add_argument("--out", required=True, help="output directory (plan.npz + plan.json)")
+    pl.add_argument("--scan-surface", default=None, metavar="SCAN",
+                    help="plan on the part surfaces this scan's depth maps saw (the model's scan; "
+                         "parts.scan_surface_points), not the Gaussian centres")  # fmt: skip
     pl.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' ±1σ extents, not their centres (thin parts)")
     pl.add_argument("--hand-grasps", action="store_true",

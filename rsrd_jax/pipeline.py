@@ -104,6 +104,16 @@ class PipelineConfig:
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
     trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
     the jaw (Grasp fails)."""
+    plan_scan_surface: bool = False
+    """Plan on the parts' surfaces as the scan's depth saw them (`parts.scan_surface_points`: the
+    depth maps back-projected inside each part's mask, plus the Gaussian centres no scan view
+    sees through) instead of the Gaussian centres, whose outer tail fattens the parts by 2-8 mm
+    where the pads must pass (the studio led_light: no grasp on its panel seats with the 3 mm
+    clearance). Needs a scan with depth maps. Off: on the tracked led_light over 10 table
+    orientations (session 38, `experiments/results/robot_trials_s38_led_light_scan_surface.md`)
+    6/10 plans are found (0/10 on the centres) but every one pinches the panel's tab with the
+    fingertips (backed off 19 mm), the approach moves the lamp 6-8 mm, and the jaw shuts 10-14 mm
+    from the panel: 0/10 Grasp."""
     plan_hand_grasps: bool = False
     """Also sample grasps near where the tracker anchored each hand (`anchored_hand_points`,
     `PlanConfig.hand_grasp_config`)."""
@@ -254,7 +264,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         (init/traj/grasp/exec) and ``end_to_end``.
     """
     from .io import load_plan, load_trajectory, read_demo, read_demo_gt, save_plan, save_trajectory, write_video
-    from .parts import build_object_model, load_object_model, save_object_model
+    from .parts import build_object_model, load_object_model, save_object_model, scan_surface_points
     from .plan import PlanConfig, plan_robot, read_robot_object_pose
     from .robot import load_yumi
     from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan, with_init
@@ -344,6 +354,10 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     with _stage("plan", rep, log):
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [p - cents[k] for k, p in enumerate(pts)]
+        if cfg.plan_scan_surface:
+            surf = scan_surface_points(studio_dir / "scan", np.asarray(model.gaussians.means), np.asarray(model.gaussians.part_ids),
+                                       model.num_parts, views=model.meta.get("train_views"))  # fmt: skip
+            part_points = [p - cents[k] for k, p in enumerate(surf)]
         hands = studio_hands_in_object_frame(studio_dir, traj.T_cam_obj)
         mesh_points = None
         if cfg.plan_extent_meshes:

@@ -406,3 +406,77 @@ def test_feature_backend_record_rebuilds_extractor():
     assert np.array_equal(np.asarray(again.net.stem_w), np.asarray(ext.net.stem_w))
     with pytest.raises(ValueError, match="unknown"):
         make_extractor({"name": "clip"})
+
+
+def _without(scan, tmp_path, key):
+    """A copy of the capture's transforms.json (same files) without `key` on every frame."""
+    meta = json.loads((scan / "transforms.json").read_text())
+    for f in meta["frames"]:
+        f.pop(key, None)
+        for k in ("file_path", "depth_file_path", "mask_path", "part_mask_path"):
+            if k in f:
+                f[k] = str((scan / f[k]).resolve())
+    d = tmp_path / f"no_{key}"
+    d.mkdir()
+    (d / "transforms.json").write_text(json.dumps(meta))
+    return d
+
+
+def _red_box_sdf(scan, points, k):
+    """Signed distance (m) of world points to the studio red_box's part k (a union of boxes)."""
+    from rsrd_jax.studio import get_object
+
+    z = np.load(scan / "gt" / "scan_gt.npz")
+    T = np.asarray(jaxlie.SE3(jnp.asarray(z["T_world_part"][k], jnp.float32)).inverse().as_matrix(), np.float64)
+    p = points @ T[:3, :3].T + T[:3, 3]
+    out = np.full(len(p), np.inf)
+    for g in get_object("red_box").parts[k].geoms:
+        assert g.type == "box" and not any(g.euler)
+        q = np.abs(p - np.asarray(g.pos)) - np.asarray(g.size)
+        out = np.minimum(out, np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(1), 0.0))
+    return out
+
+
+def test_scan_surface_points_lie_on_the_surface_and_carve_what_the_views_see_through(studio_scan, tmp_path):
+    """Centres = the true surface samples plus floaters 5 mm outside it. The scan's depth maps
+    back-projected inside each part's mask lie on that part's true surface (the analytic boxes of
+    the studio red_box; the depth's 1 mm quantisation), the floaters a view sees through are
+    carved, the centres no view sees (the box's underside) are kept; without part masks the depth pixels take the nearest
+    centre's part; a capture without depth is refused."""
+    from scipy.spatial import cKDTree
+
+    from rsrd_jax.parts import scan_surface_points
+
+    world, ids = _gt_world(studio_scan)
+    rng = np.random.default_rng(0)
+    pick = rng.choice(np.flatnonzero(world[:, 2] > 0.01), 400, replace=False)  # above the table
+    centre = np.stack([world[ids == k].mean(0) for k in range(2)])
+    out_dir = world[pick] - centre[ids[pick]]
+    out_dir /= np.linalg.norm(out_dir, axis=1, keepdims=True)
+    floaters = world[pick] + 0.005 * out_dir
+    means = np.concatenate([world, floaters])
+    part_ids = np.concatenate([ids, ids[pick]])
+
+    def check(pts, label_accuracy):
+        for k in range(2):
+            own, other = np.abs(_red_box_sdf(studio_scan, pts[k], k)), np.abs(_red_box_sdf(studio_scan, pts[k], 1 - k))
+            assert np.percentile(own, 99) < 1.0e-3, (k, np.percentile(own, 99))
+            assert np.mean(own <= other) > label_accuracy, (k, np.mean(own <= other))
+
+    # on-surface centres only: every returned point lies on its part's surface
+    pts = scan_surface_points(studio_scan, world, ids, 2, voxel=0.0)
+    check(pts, 0.98)
+    thin = scan_surface_points(studio_scan, world, ids, 2)  # one point per millimetre cell
+    assert all(len(t) < len(p) for t, p in zip(thin, pts))
+    check(thin, 0.98)
+    # without part masks: labelled by the nearest centre
+    check(scan_surface_points(_without(studio_scan, tmp_path, "part_mask_path"), world, ids, 2), 0.95)
+    # with floaters: those a view sees through are carved, the surface centres kept
+    kept = cKDTree(np.concatenate(scan_surface_points(studio_scan, means, part_ids, 2, voxel=0.0)))
+    floaters_kept = np.mean(kept.query(floaters)[0] < 1e-9)
+    bottom = world[(ids == 0) & (world[:, 2] < 5e-4)]  # the box's underside, on the table: no view sees it
+    bottom_kept = np.mean(kept.query(bottom)[0] < 1e-9)
+    assert floaters_kept < 0.2, floaters_kept
+    assert len(bottom) > 50 and bottom_kept > 0.9, (len(bottom), bottom_kept)
+    with pytest.raises(ArtefactError, match="depth"):
+        scan_surface_points(_without(studio_scan, tmp_path, "depth_file_path"), means, part_ids, 2)

@@ -561,6 +561,46 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
                  "--out", str(tmp_path / "plan2")]) == 2  # fmt: skip
 
 
+def test_cli_plan_scan_surface_needs_a_scan_with_depth(tmp_path, capsys):
+    """`rsrd-jax plan ... --scan-surface SCAN` with a scan that has no depth maps is an error
+    naming the scan's transforms.json and the depth it lacks, exit code 2, before any planning
+    and without writing the plan."""
+    import cv2
+
+    from rsrd_jax.cli import main
+    from rsrd_jax.features import fit_pca
+    from rsrd_jax.io import PartTrajectory, save_trajectory
+    from rsrd_jax.parts import FeatureDecoder, ObjectModel, save_object_model
+    from rsrd_jax.splat import Gaussians
+
+    rng = np.random.default_rng(0)
+    pts = _cube(0.02, 4)
+    n = len(pts)
+    g = Gaussians.create(pts, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.002)), np.zeros(n),
+                         rng.uniform(size=(n, 3)), rng.normal(size=(n, 4)), np.zeros(n, int))  # fmt: skip
+    save_object_model(ObjectModel(
+        gaussians=g, decoder=FeatureDecoder.create(4, 3, 8, 2, jax.random.key(0)),
+        pca=fit_pca(rng.normal(size=(50, 6)).astype(np.float32), dim=3),
+        part_centroids=jnp.zeros((1, 3), jnp.float32), arap_pairs=jnp.zeros((0, 2), jnp.int32),
+        feature_backend={"name": "none"}, part_names=("cube",), meta={},
+    ), tmp_path / "model")  # fmt: skip
+    traj = _trajectory()
+    save_trajectory(PartTrajectory(
+        T_obj_part=traj, T_cam_obj=np.tile([1.0, 0, 0, 0, 0, 0, 0.5], (len(traj), 1)), T_cam_world_part=traj.copy(),
+        residual=np.zeros((len(traj), 1)), visible=np.ones((len(traj), 1)), loss=np.zeros(len(traj)), meta={},
+    ), tmp_path / "traj")  # fmt: skip
+    scan = tmp_path / "scan"
+    scan.mkdir()
+    cv2.imwrite(str(scan / "0.png"), np.zeros((8, 8, 3), np.uint8))
+    (scan / "transforms.json").write_text(json.dumps({"fl_x": 8, "fl_y": 8, "w": 8, "h": 8, "frames": [
+        {"file_path": "0.png", "transform_matrix": np.eye(4).tolist()}]}))  # fmt: skip
+    rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
+               "--scan-surface", str(scan), "--out", str(tmp_path / "plan")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "transforms.json" in err and "depth" in err, err
+    assert not (tmp_path / "plan").exists()
+
+
 def test_part_sdf_matches_analytic_box_distance():
     """The grid distance of a box known only by surface samples equals the analytic box SDF
     (minus the ball radius) near the surface, is negative inside, and needs no mesh; points far

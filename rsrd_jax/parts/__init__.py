@@ -3,7 +3,8 @@
 Owns: building an ObjectModel from a capture (3DGS fit via `splat._fit`, the per-Gaussian
 feature field and its decoder, part labels by multi-view mask voting with visibility or automatic
 grouping, part centroids, ARAP boundary pairs), its files (`model.safetensors` + `model.json`)
-and rebuilding its feature extractor. Does not own rendering (`splat/`) or feature extraction
+rebuilding its feature extractor, and the parts' surfaces as the scan's depth saw them (the
+planner's geometry). Does not own rendering (`splat/`) or feature extraction
 networks (`features/`).
 """
 
@@ -34,4 +35,5 @@ from ._model import (
     make_extractor as make_extractor,
     save_object_model as save_object_model,
 )
+from ._surface import scan_surface_points as scan_surface_points
 from ..splat._fit import FitConfig as FitConfig, FitResult as FitResult, fit_gaussians as fit_gaussians
