@@ -264,8 +264,8 @@ def main(argv=None) -> int:
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--scan-surface", action="store_true",
                     help="plan on the part surfaces from the scan's depth (PipelineConfig.plan_scan_surface)")
-    ap.add_argument("--square-grasps", action="store_true",
-                    help="PipelineConfig.plan_square_grasps (prefer square pinches)")
+    ap.add_argument("--square-grasps", action=argparse.BooleanOptionalAction, default=PipelineConfig.plan_square_grasps,
+                    help="PipelineConfig.plan_square_grasps (prefer square pinches; on by default)")
     ap.add_argument("--square-cone", type=float, default=PipelineConfig.plan_square_cone_deg, metavar="DEG",
                     help="PipelineConfig.plan_square_cone_deg: the friction cone of --square-grasps (degrees)")
     ap.add_argument("--build-size", choices=("pipeline", "default"), default="pipeline",

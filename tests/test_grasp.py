@@ -455,7 +455,8 @@ def test_square_grasps_switch_cone_and_bad_inputs():
     wide = _plan_config(PipelineConfig(plan_square_grasps=True, plan_square_cone_deg=45.0))
     assert (wide.grasp_config.normal_radius, wide.grasp_config.friction_angle_deg) == (0.008, 45.0)
     assert wide.spread_grasp_config == base.spread_grasp_config
-    assert _plan_config(PipelineConfig(plan_square_cone_deg=45.0)).grasp_config == base.grasp_config  # switch off
+    assert _plan_config(PipelineConfig(plan_square_grasps=False)).grasp_config == base.grasp_config  # switch off
+    assert _plan_config(PipelineConfig()) == wide  # the pipeline's default
     for bad in (0.0, 90.0, float("nan")):
         with pytest.raises(ValueError, match="cone"):
             PipelineConfig(plan_square_grasps=True, plan_square_cone_deg=bad)
