@@ -343,8 +343,9 @@ def _planned_from_ground_truth(root, square: bool = False, config=None):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
     "red_box", "nerf_gun",
-    pytest.param("scissors", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): the blade grasp "
-                                                     "ends with the jaw shut (-0.3 mm) against the lying blade")),
+    pytest.param("scissors", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm margin "
+                                                     "no blade grasp has a collision-free approach (session 38; "
+                                                     "before, the jaw shut against the lying blade)")),
     pytest.param("sunglasses", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm "
                                                        "margin every temple grasp hits the table or the frame")),
     pytest.param("bear", marks=pytest.mark.xfail(strict=True, reason="KNOWN FAILURE (issue 8): with a 3 mm margin no "

@@ -2,7 +2,7 @@
 
 Owns: building an ObjectModel from a capture (3DGS fit via `splat._fit`, the per-Gaussian
 feature field and its decoder, part labels by multi-view mask voting with visibility or automatic
-grouping, part centroids, ARAP boundary pairs), its files (`model.safetensors` + `model.json`)
+grouping, part centroids, ARAP boundary pairs), its files (`model.safetensors` + `model.json`),
 rebuilding its feature extractor, and the parts' surfaces as the scan's depth saw them (the
 planner's geometry). Does not own rendering (`splat/`) or feature extraction
 networks (`features/`).

@@ -28,12 +28,14 @@ def scan_surface_points(
     views=None,
     carve_tolerance: float = 0.0015,
     voxel: float = 0.001,
+    label_distance: float = 0.003,
 ) -> list[Float[np.ndarray, "_m 3"]]:
     """Each part's surface points (the scan's world frame, metres) from the scan's depth maps.
 
     Every view's depth is back-projected inside the part's mask (the capture's part masks,
-    label k + 1 for part k; without part masks, the object pixels labelled by the part of the
-    nearest Gaussian centre). The part's Gaussian centres are added where no view sees past them:
+    label k + 1 for part k; without part masks, the object pixels (every pixel without object
+    masks) take the part of the nearest Gaussian centre if it lies within `label_distance`, and
+    are dropped otherwise: the table and the background). The part's Gaussian centres are added where no view sees past them:
     a centre nearer to a view's camera than the depth that view measured at its pixel, by more
     than `carve_tolerance`, lies in free space and is dropped; the rest fill what no view saw
     (centres on a slanted face or at a silhouette are carved too, but the depth covers them).
@@ -46,6 +48,8 @@ def scan_surface_points(
         carve_tolerance: free-space margin (m): the depth maps' quantisation (1 mm) and the
             centres' fit error must not carve the surface itself.
         voxel: thinning cell (m); 0 keeps every point.
+        label_distance: without part masks, the largest distance (m) from a depth point to the
+            Gaussian centre whose part it takes.
 
     Returns:
         `num_parts` arrays (n_k × 3).
@@ -102,9 +106,10 @@ def scan_surface_points(
 
         rest = np.concatenate(unlabelled)
         if len(rest):
-            _, i = cKDTree(means).query(rest)
+            dist, i = cKDTree(means).query(rest)
+            near = dist <= label_distance
             for k in range(num_parts):
-                found[k].append(rest[part_ids[i] == k])
+                found[k].append(rest[near & (part_ids[i] == k)])
     out = []
     for k in range(num_parts):
         pts = np.concatenate(found[k] + [means[keep & (part_ids == k)]])
