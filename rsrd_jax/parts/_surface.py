@@ -12,6 +12,7 @@ gaps between parts).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,20 +26,21 @@ def scan_surface_points(
     means: Float[np.ndarray, "n 3"],
     part_ids: Int[np.ndarray, " n"],
     num_parts: int,
-    views=None,
+    views: Sequence[int] | None = None,
     carve_tolerance: float = 0.0015,
     voxel: float = 0.001,
     label_distance: float = 0.003,
 ) -> list[Float[np.ndarray, "_m 3"]]:
     """Each part's surface points (the scan's world frame, metres) from the scan's depth maps.
 
-    Every view's depth is back-projected inside the part's mask (the capture's part masks,
-    label k + 1 for part k; without part masks, the object pixels (every pixel without object
-    masks) take the part of the nearest Gaussian centre if it lies within `label_distance`, and
-    are dropped otherwise: the table and the background). The part's Gaussian centres are added where no view sees past them:
-    a centre nearer to a view's camera than the depth that view measured at its pixel, by more
-    than `carve_tolerance`, lies in free space and is dropped; the rest fill what no view saw
-    (centres on a slanted face or at a silhouette are carved too, but the depth covers them).
+    Every view's depth is back-projected inside the part's mask: the capture's part masks
+    (label k + 1 for part k), or without them the object pixels (every pixel of a scan without
+    object masks) labelled by the nearest Gaussian centre within `label_distance` and dropped
+    farther from every centre (the table, the background). The part's Gaussian centres are
+    added where no view sees past them: a centre nearer to a view's camera than the depth that
+    view measured at its pixel, by more than `carve_tolerance`, lies in free space and is
+    dropped; the rest fill what no view saw (centres on a slanted face or at a silhouette are
+    carved too, but the depth covers them).
     Each part's points are thinned to one per `voxel`-sized cell (their mean).
 
     Args:
