@@ -64,16 +64,18 @@ motion prior or both."""
 DEFAULT_ABLATIONS = ["RSRD (ours)", "+ joint discovery", "+ hands", "no depth", "no ARAP", "photometric only"]
 
 
-def row_config(ablation: str, quick: bool = False) -> tuple[TrackConfig, bool]:
-    """The TrackConfig of an `ABLATIONS` row and whether it uses the studio's fingertips."""
+def row_config(ablation: str, quick: bool = False, overrides: dict | None = None) -> tuple[TrackConfig, bool]:
+    """The TrackConfig of an `ABLATIONS` row and whether it uses the studio's fingertips;
+    `overrides`: TrackConfig fields set on top of the row's (`--track-set`)."""
     opts = dict(ABLATIONS[ablation])
     hands = bool(opts.pop("hands", False))
     base = _PIPE.track_config() if opts.pop("pipeline", False) else TrackConfig()
+    opts.update(overrides or {})
     return dataclasses.replace(base, **{"smooth_iters": 10 if quick else base.smooth_iters, **opts}), hands
 
 
 def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default",
-        partial: Path | None = None) -> dict:  # fmt: skip
+        partial: Path | None = None, overrides: dict | None = None) -> dict:  # fmt: skip
     """Track each object with each ablation. `partial`: a JSON of the results so far, rewritten
     after each object; objects whose every ablation is in it are not tracked again (a long run
     that died, e.g. XLA's CPU compiler running out of code memory after many objects in one
@@ -104,7 +106,7 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
         pts = [model.part_points(k) for k in range(model.num_parts)]
         results[name] = {}
         for ab in ablations:
-            cfg, hands = row_config(ab, quick)
+            cfg, hands = row_config(ab, quick, overrides)
             tips = StudioFingertips(root / "demo") if hands else None
             init = InitConfig(iters=pipe.init_iters) if size == "pipeline" else InitConfig()
             t0 = time.perf_counter()
@@ -120,6 +122,8 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
                 "timings_s": traj.meta["timings_s"],
                 "fingertips": traj.meta["fingertips"],
                 "frames": traj.num_frames,
+                "slide_hypotheses": traj.meta["joints"].get("slide_hypotheses", []),
+                "track_overrides": overrides or {},
             }
             print(name, ab, f"ADD(obj) {m['mean_add_obj_mm']:.2f} mm, ADD(cam) {m['mean_add_mm']:.2f} mm", flush=True)
         if partial is not None:
@@ -167,9 +171,20 @@ def main() -> None:
     p.add_argument("--size", choices=("default", "pipeline"), default="default",
                    help="scan and build: default (48 views 320×240, BuildConfig()) or the `rsrd-jax demo` sizes")  # fmt: skip
     p.add_argument("--work", type=Path, default=Path("experiments/work/tracking"))
+    p.add_argument("--track-set", action="append", default=[], metavar="FIELD=JSON",
+                   help="set a TrackConfig field in every row, e.g. slide_max_turn_deg=null (repeatable)")
     a = p.parse_args()
+    overrides = {}
+    for item in a.track_set:
+        field, sep, value = item.partition("=")
+        if not sep or field not in {f.name for f in dataclasses.fields(TrackConfig)}:
+            p.error(f"--track-set {item!r}: expected FIELD=JSON with FIELD a TrackConfig field")
+        try:
+            overrides[field] = json.loads(value)
+        except json.JSONDecodeError as e:
+            p.error(f"--track-set {item!r}: the value is not JSON ({e})")
     out = Path(__file__).resolve().parent / "results"
-    res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size, a.work / f"{a.name}.partial.json")
+    res = run(a.objects, a.frames, a.quick, a.work, a.ablations, a.size, a.work / f"{a.name}.partial.json", overrides)
     atomic_write_json(out / f"{a.name}.json", res)
     atomic_write_text(out / f"{a.name}.md", table(res, a.ablations))
     print(table(res, a.ablations))

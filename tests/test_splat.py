@@ -474,3 +474,31 @@ def test_composite_rows_matches_composite():
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
     for a, b in zip(d1, d2):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * float(np.abs(b).max()))
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_chunk_carry_sums_each_tiles_earlier_or_later_chunks(rng, reverse):
+    """`_chunk_carry` against a brute-force sum over the chunks of the same tile before (after)
+    each chunk: 7 tiles with 0–9 chunks (one at the full 9), chunks laid out tile by tile as
+    binning leaves them, unused chunks at the end (carry 0)."""
+    from rsrd_jax.splat._composite import ChunkLayout, _chunk_carry
+
+    kc, nc, P = 9, 40, 5
+    counts = rng.integers(0, 6, 7)
+    counts[2] = kc
+    tile = [t for t, c in enumerate(counts) for _ in range(c)]
+    index = [i for c in counts for i in range(c)]
+    n = len(tile)
+    pad = nc - n
+    tile, index, count = tile + [0] * pad, index + [0] * pad, [counts[t] for t in tile[:n]] + [0] * pad
+    last = [max((c for c in range(n) if tile[c] == t), default=-1) for t in range(7)]
+    layout = ChunkLayout(*(jnp.asarray(x, jnp.int32) for x in (tile, index, count, last)))
+    tot = rng.normal(size=(nc, P)).astype(np.float32)
+    want = np.zeros((nc, P), np.float32)
+    for c in range(n):
+        for d in range(n):
+            if tile[d] == tile[c] and (index[d] > index[c] if reverse else index[d] < index[c]):
+                want[c] += tot[d]
+    got = np.asarray(_chunk_carry(jnp.asarray(tot), layout, kc, reverse))
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    assert np.all(got[n:] == 0.0)

@@ -386,13 +386,13 @@ def test_discover_joints_gives_a_rolling_bar_its_hinge_axis_and_a_slide_hypothes
     stub = _stub_pass(T, HandAnchors.empty(0))
     cfg = TrackConfig(joints=True, hinge_axes=True)
     w = Weights.from_config(cfg, False, 0.05)
-    tm_b, info, _, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), stub, np.array([0.0, 0.0, 1.0]))
+    tm_b, info, _, _, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), stub, np.array([0.0, 0.0, 1.0]))
     assert np.asarray(tm_b.hinge_parts).tolist() == [[1, 0]] and np.asarray(tm_b.hinge_weight).tolist() == [1.0]
     assert abs(np.asarray(tm_b.hinge_axes)[0] @ np.array([0.0, 0.0, 1.0])) > 0.999, info
     r90 = np.percentile(np.linalg.norm(bar - cents[1], axis=1), 90)
     assert float(tm_b.hinge_lengths[0]) == pytest.approx(r90, rel=1e-3)  # the bar's 90th-percentile radius
     assert np.linalg.norm(np.cross(np.asarray(info["1"]["point"]) - X, [0.0, 0.0, 1.0])) < 2e-3  # on the pivot
-    plain, _, _, _ = _discover_joints(tm, neighbour, w, TrackConfig(joints=True), jax.random.key(0), stub)
+    plain, _, _, _, _ = _discover_joints(tm, neighbour, w, TrackConfig(joints=True), jax.random.key(0), stub)
     assert float(np.sum(np.asarray(plain.hinge_weight))) == 0.0
     slid = _with_slide(tm_b, 1, 0, np.array([1.0, 0.0, 0.0]), 0.05, np.zeros(len(np.asarray(tm_b.arap_weight)), bool), 0, True)
     assert float(np.sum(np.asarray(slid.hinge_weight))) == 0.0 and float(np.sum(np.asarray(slid.slide_weight))) == 1.0
@@ -413,7 +413,7 @@ def test_discover_joints_on_two_parts_when_the_held_part_got_no_joint_point(rng)
          for a in np.deg2rad(np.linspace(0.0, 3.0, 8))]  # fmt: skip
     held = HandAnchors(np.array([1]), np.zeros((1, 3)), np.array([0]))
     cfg = TrackConfig(joints=True, hinge_axes=True)
-    tm_b, info, _, cands = _discover_joints(tm, neighbour, Weights.from_config(cfg, False, 0.05), cfg, jax.random.key(0),
+    tm_b, info, _, cands, _ = _discover_joints(tm, neighbour, Weights.from_config(cfg, False, 0.05), cfg, jax.random.key(0),
                                             _stub_pass(T, held), np.array([0.0, 0.0, 1.0]))  # fmt: skip
     assert info["1"]["point"] is None and info["slide_candidates_not_held"] == [] and cands == []
     assert float(np.sum(np.asarray(tm_b.hinge_weight))) == 0.0
@@ -485,23 +485,23 @@ def test_discover_joints_takes_the_hinge_axis_the_hand_moved_the_part_about(rng)
     cfg = TrackConfig(joints=True, hinge_axes=True, slide_max_turn_deg=None)
     w = Weights.from_config(cfg, False, 0.05)
     up = np.array([0.0, 0.0, 1.0])
-    _, by_points, _, cand_points = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up)
-    tm_b, info, _, cand_hands = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up, hands)
+    _, by_points, _, cand_points, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up)
+    tm_b, info, _, cand_hands, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up, hands)
     assert abs(np.asarray(by_points["1"]["hinge_axis"]) @ [0.0, 1.0, 0.0]) < 0.9, by_points["1"]
     assert abs(np.asarray(tm_b.hinge_axes)[0] @ [0.0, 1.0, 0.0]) > 0.99, info["1"]
     assert len(info["1"]["hinge_hand_px"]) == len(info["1"]["hinge_candidates"])
     # slides: tried on the points alone, ruled out by the hand's arc
     assert [c[0] for c in cand_points] == [1] and cand_hands == [] and info["slide_candidates_ruled_out_by_hand"] == [1]
     assert min(info["1"]["slide_hand_px"]) > 2 * min(info["1"]["hinge_hand_px"]) + 1.0
-    _, _, _, cand_all = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_ratio=None), jax.random.key(0),
+    _, _, _, cand_all, _ = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_ratio=None), jax.random.key(0),
                                          _stub_pass(T, held), up, hands)  # fmt: skip
     assert [c[0] for c in cand_all] == [1]
     # the turn test, without the hand: 72° turned, no slide candidate under 20°, one under 75°
     turned = dataclasses.replace(cfg, slide_max_turn_deg=20.0)
-    _, info_t, _, cand_t = _discover_joints(tm, neighbour, w, turned, jax.random.key(0), _stub_pass(T, held), up)
+    _, info_t, _, cand_t, _ = _discover_joints(tm, neighbour, w, turned, jax.random.key(0), _stub_pass(T, held), up)
     assert cand_t == [] and info_t["slide_candidates_turned"] == [1], info_t
     assert info_t["1"]["first_turn_deg"] == pytest.approx(72.0, abs=0.1)
-    _, info_s, _, cand_s = _discover_joints(tm, neighbour, w, dataclasses.replace(turned, slide_max_turn_deg=75.0), jax.random.key(0),
+    _, info_s, _, cand_s, _ = _discover_joints(tm, neighbour, w, dataclasses.replace(turned, slide_max_turn_deg=75.0), jax.random.key(0),
                                             _stub_pass(T, held), up)  # fmt: skip
     assert [c[0] for c in cand_s] == [1] and "slide_candidates_turned" not in info_s
 
@@ -536,15 +536,54 @@ def test_discover_joints_tries_only_the_slide_direction_the_pinch_track_fits_bes
     cfg = TrackConfig(joints=True, hinge_axes=True, slide_hand_ratio=1e3, slide_hand_best=None)
     w = Weights.from_config(cfg, False, 0.05)
     up = np.array([0.0, 0.0, 1.0])
-    _, info, _, every = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up, hands)
+    _, info, _, every, _ = _discover_joints(tm, neighbour, w, cfg, jax.random.key(0), _stub_pass(T, held), up, hands)
     assert [c[0] for c in every] == [1] and len(every[0][3]) == 3, info
     assert info["1"]["first_turn_deg"] == pytest.approx(6.0, abs=0.1)
-    _, info1, _, best = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_best=1), jax.random.key(0),
+    _, info1, _, best, _ = _discover_joints(tm, neighbour, w, dataclasses.replace(cfg, slide_hand_best=1), jax.random.key(0),
                                          _stub_pass(T, held), up, hands)  # fmt: skip
     assert [c[0] for c in best] == [1] and len(best[0][3]) == 1, info1
     assert abs(best[0][3][0] @ [1.0, 0.0, 0.0]) > 0.99, best[0][3]
     px = np.asarray(info1["1"]["slide_hand_px"])
     assert px.min() < 1.0 < 3 * px.min() < np.sort(px)[1], px
+
+
+@pytest.mark.parametrize("baseline", ["first", "joint"])
+def test_slide_hypotheses_beat_their_baseline_or_the_joint_point_is_tracked(baseline):
+    """`_slide_hypotheses` on stub passes (data loss summed over 10 frames; first pass 1.0 a
+    frame): with `slide_baseline="first"` a slide 1 % below the first pass wins with no other
+    pass run; slides 0.3 % below (under `slide_min_gain`) or above it lose, and the joint point
+    is then tracked once with `velocity_hypothesis` (the first pass is never the result); with
+    "joint" the joint point's two-start pass is the baseline and, when it is kept, is tracked
+    again with one start."""
+    import types
+
+    from rsrd_jax.track import TrackConfig
+    from rsrd_jax.track._track import _slide_hypotheses
+
+    cfg = TrackConfig(joints=True, slide_baseline=baseline)
+    first = types.SimpleNamespace(data_loss=[1.0] * 10, name="first")
+    axes = np.eye(3)[:2]
+    candidates = [(1, 0, 0.05, axes, None, 0)]
+
+    def run(per_frame: dict):
+        calls = []
+
+        def run_pass(tm, desc, vh):
+            calls.append((tm, desc, vh))
+            return types.SimpleNamespace(data_loss=[per_frame[tm]] * 10, name=f"{desc} {tm}")
+
+        with_slide = lambda tm, k, nb, a, *_: f"slide {int(np.argmax(a))}"  # noqa: E731
+        return _slide_hypotheses(first, "joint point", candidates, cfg, with_slide, run_pass), calls
+
+    base_calls = [("joint point", "track", cfg.slide_velocity)] if baseline == "joint" else []
+    (best, tm, chosen, trials), calls = run({"slide 0": 1.02, "slide 1": 0.99, "joint point": 1.0})
+    assert tm == "slide 1" and best.name == "track (slide 1 hypothesis) slide 1" and list(chosen) == [1], trials
+    assert calls == base_calls + [("slide 0", "track (slide 1 hypothesis)", 1.0), ("slide 1", "track (slide 1 hypothesis)", 1.0)]
+    assert trials[0] == {"part": None, "axis": None, "data_loss": pytest.approx(10.0), "pass": baseline}
+    assert [t["data_loss"] for t in trials[1:]] == pytest.approx([10.2, 9.9])
+    (best, tm, chosen, trials), calls = run({"slide 0": 1.02, "slide 1": 0.997, "joint point": 1.0})
+    assert tm == "joint point" and chosen == {} and best.name == "track joint point", trials
+    assert calls[-1] == ("joint point", "track", cfg.velocity_hypothesis) and len(calls) == len(base_calls) + 3
 
 
 def test_revolute_loss_allows_only_turns_about_the_axis():

@@ -160,6 +160,8 @@ def track_video(
         raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
     if config.rebin_every < 1:
         raise ValueError(f"TrackConfig.rebin_every must be ≥ 1, got {config.rebin_every}")
+    if config.slide_baseline not in ("first", "joint"):
+        raise ValueError(f"TrackConfig.slide_baseline must be 'first' or 'joint', got {config.slide_baseline!r}")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     f = np.asarray(demo.frames)
@@ -300,8 +302,7 @@ def track_video(
             residual.append(np.asarray(aux["part_residual"]))
             visible.append(np.asarray(aux["part_visible"]))
             losses.append(float(aux["loss"]))
-            data.append(float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"] + w.hand * aux["hand"]
-                              + w.hand_depth * aux["hand_depth"]))
+            data.append(_data_loss(w, aux))
             bar.set_postfix(loss=f"{losses[-1]:.3g}")
             if log is not None and record:
                 logged.append(("frame", t, {"T_obj_part": T, "T_cam_obj": T_cam_obj, "obs": obs, "aux": aux}))
@@ -318,29 +319,22 @@ def track_video(
             pinch = [obsr.pinch_points(t, demo.frames[t]) for t in range(demo.num_frames)]
             hands = _HandTrack(np.stack([u for u, _ in pinch]), np.stack([s for _, s in pinch]),
                                np.asarray(T_cam_obj.wxyz_xyz, np.float64), K)  # fmt: skip
-        tm, joint_info, key, candidates = _discover_joints(tm, neighbour, w, config, key, per_frame_pass,
+        tm, joint_info, key, candidates, first = _discover_joints(tm, neighbour, w, config, key, per_frame_pass,
                                                            None if up is None else np.asarray(up, np.float64)[:3], hands)  # fmt: skip
         timings["joint_pass_s"] = time.perf_counter() - t_frames
-    # with slide candidates every hypothesis, the joint point's too, starts each frame from a
-    # second guess (`slide_velocity`, which says why); a winning joint point is re-run below
-    vh = config.velocity_hypothesis if not candidates or config.slide_velocity is None else config.slide_velocity
-    key_b = key
-    best = per_frame_pass(tm, w, key_b, "track", vh=vh)
     if candidates:
-        # slide hypotheses: each candidate part in turn, along each of its axes (the other parts
-        # as chosen so far); the lowest summed data loss over the frames wins when it is lower
-        # by more than `slide_min_gain`
+        # slide hypotheses against `slide_baseline`; the kept pass is the winner's
         t_h = time.perf_counter()
-        best, tm, chosen, trials = _choose_slides(
-            best, tm, candidates, config.slide_min_gain,
+        best, tm, chosen, trials = _slide_hypotheses(
+            first, tm, candidates, config,
             lambda tm_k, k, nb, a, length, pair_mask, slot_pair: _with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots),
-            lambda tm_h, k: per_frame_pass(tm_h, w, key_b, f"track (slide {k} hypothesis)", vh=vh))  # fmt: skip
+            lambda tm_h, desc, vh: per_frame_pass(tm_h, w, key, desc, vh=vh))  # fmt: skip
         for k, axis in chosen.items():
             joint_info[str(k)]["slide_axis"] = axis
         joint_info["slide_hypotheses"] = trials
-        if not chosen and vh != config.velocity_hypothesis:
-            best = per_frame_pass(tm, w, key_b, "track")
         timings["slide_hypotheses_s"] = time.perf_counter() - t_h
+    else:
+        best = per_frame_pass(tm, w, key, "track")
     T_parts, obs_all, residual, visible, losses, key = best.T_parts, best.obs, best.residual, best.visible, best.loss, best.key
     for entry in best.logged:
         log(*entry)
@@ -528,7 +522,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         tm_b = eqx.tree_at(lambda m: (m.hinge_parts, m.hinge_axes, m.hinge_lengths, m.hinge_weight), tm_b, (
             jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
             jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
-    return tm_b, info, key, candidates
+    return tm_b, info, key, candidates, first
 
 
 def _hand_on(anchors, parts) -> int | None:
@@ -537,6 +531,37 @@ def _hand_on(anchors, parts) -> int | None:
         if int(p) in parts:
             return h
     return None
+
+
+def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, run_pass):
+    """The second pass with slide hypotheses (`TrackConfig.slides`): each candidate's slides are
+    tracked (`_choose_slides`) against the baseline `TrackConfig.slide_baseline` names, the first
+    pass ("first") or a pass on the joint point with the hypotheses' starts ("joint"); when no
+    slide wins, the joint point is tracked with `velocity_hypothesis` (what a second pass without
+    candidates does).
+
+    Args:
+        first: the joint discovery's first pass (a `_Pass`).
+        tm: the second pass's model (joint points, hinge axes).
+        candidates: as `_choose_slides` takes them.
+        config: the tracking options.
+        with_slide: as `_choose_slides` takes it.
+        run_pass: `(tm, description, velocity hypothesis) -> _Pass`, one per-frame pass.
+
+    Returns:
+        (the kept pass, its model, {part: winning axis}, the trials as `_choose_slides` gives
+        them, the baseline's entry naming its pass).
+    """
+    vh = config.velocity_hypothesis if config.slide_velocity is None else config.slide_velocity
+    base = first if config.slide_baseline == "first" else run_pass(tm, "track", vh)
+    best, tm_s, chosen, trials = _choose_slides(base, tm, candidates, config.slide_min_gain, with_slide,
+                                                lambda tm_h, k: run_pass(tm_h, f"track (slide {k} hypothesis)", vh))  # fmt: skip
+    trials[0]["pass"] = config.slide_baseline
+    if chosen:
+        return best, tm_s, chosen, trials
+    if base is first or vh != config.velocity_hypothesis:
+        base = run_pass(tm, "track", config.velocity_hypothesis)
+    return base, tm, chosen, trials
 
 
 def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
@@ -572,6 +597,12 @@ def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
                 best, tm = res, tm_h
                 chosen[int(k)] = trials[-1]["axis"]
     return best, tm, chosen, trials
+
+
+def _data_loss(w, aux) -> float:
+    """The data terms of a frame's final loss (what hypotheses compare)."""
+    return float(w.feature * aux["feature"] + w.rgb * aux["rgb"] + w.depth_rank * aux["rank"] + w.hand * aux["hand"]
+                 + w.hand_depth * aux["hand_depth"])
 
 
 def _with_slide(tm: TrackModel, k: int, nb: int, axis, length: float, pair_mask, slot_pair: int, use_pivots: bool) -> TrackModel:
