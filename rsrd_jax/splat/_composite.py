@@ -8,7 +8,7 @@ count everywhere). Per chunk the layout is `[chunks, pixels-per-tile, B]` with t
   tile-centred coordinates (small numbers, little float32 cancellation), with −log(o) folded into
   the constant term so that α = min(MAX_ALPHA, e^(−σ'));
 - the cumulative sum of log(1 − α) along a chunk is a B×B triangular matmul, and the carry from
-  earlier chunks of the same tile a cumulative sum over a tiles × chunks-per-tile table;
+  earlier chunks of the same tile is a short static loop over chunk offsets;
 - channels are one batched GEMM `w[c, p, k] · feat[c, k, :]`, summed per tile.
 
 Forward (gsplat's rules): α = min(MAX_ALPHA, o·e^(−σ)); a pair is kept if α ≥ ALPHA_THRESHOLD;
@@ -73,22 +73,18 @@ def pixel_basis(tile_size: int, dtype) -> jax.Array:
 
 
 def _chunk_carry(tot: jax.Array, layout: ChunkLayout, max_chunks_per_tile: int, reverse: bool):
-    """Σ of `tot` (NC, P) over the earlier (or, reversed, later) chunks of the same tile, (NC, P).
-
-    Each chunk's row is placed at (tile, position) of a tiles × `max_chunks_per_tile` table, the
-    table is summed cumulatively along the positions (exclusive) and read back; unused chunks
-    get 0. (A static loop over chunk offsets did the same with one op per offset; at the
-    tracker's budgets, 134 chunks a tile, it dominated the compiled programs: studio toy_drawer,
-    cold process, initialisation 21.5 → 16.4 s, the per-frame solve's compilation 22.5 → 17.7 s,
-    the tracking rate +5 %.)"""
-    kc = max_chunks_per_tile
-    valid = layout.count > 0
-    slot = jnp.where(valid, layout.index, kc)  # unused chunks fall outside the table (dropped)
-    table = jnp.zeros((layout.last.shape[0], kc) + tot.shape[1:], tot.dtype).at[layout.tile, slot].set(tot, mode="drop")
-    cs = jax.lax.cumsum(table, axis=1, reverse=reverse)
-    zero = jnp.zeros_like(cs[:, :1])
-    excl = jnp.concatenate([cs[:, 1:], zero], axis=1) if reverse else jnp.concatenate([zero, cs[:, :-1]], axis=1)
-    return jnp.where(valid[:, None], excl[layout.tile, jnp.minimum(slot, kc - 1)], 0.0)
+    """Σ of `tot` over the earlier (or, reversed, later) chunks of the same tile, (NC, P)."""
+    nc = tot.shape[0]
+    carry = jnp.zeros_like(tot)
+    for d in range(1, max_chunks_per_tile):
+        if reverse:
+            src = jnp.concatenate([tot[d:], jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype)])[:nc]
+            ok = layout.index + d < layout.count
+        else:
+            src = jnp.concatenate([jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype), tot[:-d]])[:nc]
+            ok = layout.index >= d
+        carry = carry + jnp.where(ok[:, None], src, 0.0)
+    return carry
 
 
 def _sigma(params: jax.Array, tile_size: int) -> jax.Array:

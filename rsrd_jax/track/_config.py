@@ -132,8 +132,8 @@ class TrackConfig(eqx.Module):
     contact (`slide_point_ratio`) is tracked again in the second pass tied to its neighbour by a
     slide joint (the prismatic term, `prismatic_loss`, at the ARAP weight) along each of its
     principal axes and the level direction out of its neighbour (`slide_directions`); the hypothesis (joint point or one of the slides) with the lowest data loss
-    summed over the frames wins (by `slide_min_gain`). Costs up to four more second passes per
-    candidate part, plus one when the joint point wins (`slide_velocity`)."""
+    summed over the frames wins (by `slide_min_gain`; against `slide_baseline`). Costs one
+    second pass per slide direction tried, plus one on the joint point when no slide wins."""
     slide_held_only: bool = True
     """With `slides` and a fingertip source: only parts a hand held in the first pass (its hand
     anchors) are slide candidates (when no hand was anchored, every part stays one). Measured on
@@ -185,14 +185,16 @@ class TrackConfig(eqx.Module):
     slide_baseline: str = "first"
     """What the first slide hypothesis must beat (by `slide_min_gain`): "first", the joint
     discovery's first pass (the contact band, `joint_first_steps`, one start), whose data loss is
-    already known; "joint", a second pass on the joint point with the hypotheses' two starts
-    (`slide_velocity`), before session 39. Either way the next hypotheses must beat the best so
-    far, and when no slide wins the joint point is tracked with `velocity_hypothesis`. "first"
-    saves that pass (a third of the tracking on nerf_gun and toy_drawer). Its data loss was as
-    low as the joint point's or lower (measured, robot trials' builds: nerf_gun 84.41 against
-    84.39, toy_drawer 92.79 / 92.83, red_box 89.32 / 89.43): its weak band lets the parts fit
-    the frames freely, so it is the stricter baseline; the true slides still beat it by 1.0 %
-    (nerf_gun 83.56, toy_drawer 91.89)."""
+    already known; "joint" (before session 39), a pass on the joint point with the hypotheses'
+    two starts (`slide_velocity`). Either way a later hypothesis must beat the best so far, and
+    when no slide wins the joint point is tracked with `velocity_hypothesis`. "first" saves a
+    pass with two starts per frame: on nerf_gun and toy_drawer a third of the tracking, the same
+    trajectories (robot trials' builds, session 39). The first pass's data loss was as low as the
+    joint point's pass or lower (nerf_gun 84.41 against 84.39, toy_drawer 92.79 / 92.83, red_box
+    89.32 / 89.43; summed over 90 frames): its weak band lets the parts fit each frame freely,
+    so it is the stricter baseline. The true slides beat it by 1.0 % (nerf_gun 83.56,
+    toy_drawer 91.89); red_box's lid made a candidate on every direction (`slide_max_turn_deg`
+    and `slide_hand_ratio` off) lost by 4.0–5.0 % (92.91–93.76)."""
     slide_velocity: float | None = 1.0
     """`velocity_hypothesis` of every second-pass hypothesis when there are slide candidates (None:
     `velocity_hypothesis`), so that their data losses compare like with like (on toy_drawer the
