@@ -9,6 +9,8 @@ For each object: make the studio scan + demo, build the ObjectModel from the sca
         so one process per object (`--objects X`) and a last run over them all writes the full table)
     python -m experiments.tracking_table --size pipeline --frames 0 --name tracking_pipeline \
         --ablations "pipeline" "pipeline − hands" "pipeline − motion prior" "pipeline − both"
+    python -m experiments.tracking_table ... --track-set seed=1 --track-set slide_max_turn_deg=null
+        (TrackConfig fields set in every row, values as JSON; recorded as `track_overrides`)
 
 Mono-depth is the studio's relative-depth ORACLE and hand masks are the studio's ground truth;
 both are labelled in the table, as are the studio's 2D fingertips (the "+ hands" rows).

@@ -154,6 +154,9 @@ def test_tracking_table_pipeline_rows_are_the_pipelines_tracking():
     assert row_config("pipeline − hands") == (pipe.track_config(), False)
     assert row_config("RSRD (ours)") == (TrackConfig(), False)
     assert row_config("no ARAP", quick=True)[0].smooth_iters == 10 and row_config("no ARAP")[0].weights.arap == 0.0
+    # `--track-set`: fields set on top of the row's
+    over = row_config("pipeline", overrides={"seed": 1, "slide_max_turn_deg": None})
+    assert over == (dataclasses.replace(pipe.track_config(), seed=1, slide_max_turn_deg=None), pipe.track_hands)
 
 
 def test_tracking_table_reports_the_initialisations_compile_time_where_recorded():
