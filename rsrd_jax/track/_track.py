@@ -550,7 +550,7 @@ def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, ru
 
     Returns:
         (the kept pass, its model, {part: winning axis}, the trials as `_choose_slides` gives
-        them, the baseline's entry naming its pass).
+        them; their first entry, the baseline's, names its pass under "pass").
     """
     vh = config.velocity_hypothesis if config.slide_velocity is None else config.slide_velocity
     base = first if config.slide_baseline == "first" else run_pass(tm, "track", vh)
