@@ -298,11 +298,10 @@ def cmd_plan(a: argparse.Namespace) -> int:
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [np.asarray(model.part_points(k)) - cents[k] for k in range(model.num_parts)]
         if a.scan_surface is not None:
-            from .parts import scan_surface_points
+            from .parts import model_scan_surface
 
             try:
-                surf = scan_surface_points(a.scan_surface, np.asarray(model.gaussians.means), np.asarray(model.gaussians.part_ids),
-                                           model.num_parts, views=model.meta.get("train_views"))  # fmt: skip
+                surf = model_scan_surface(model, a.scan_surface)
             except ArtefactError as e:
                 print(f"error: {e}", file=sys.stderr)
                 return 2

@@ -270,7 +270,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         (init/traj/grasp/exec) and ``end_to_end``.
     """
     from .io import load_plan, load_trajectory, read_demo, read_demo_gt, save_plan, save_trajectory, write_video
-    from .parts import build_object_model, load_object_model, save_object_model, scan_surface_points
+    from .parts import build_object_model, load_object_model, model_scan_surface, save_object_model
     from .plan import PlanConfig, plan_robot, read_robot_object_pose
     from .robot import load_yumi
     from .sim import SimConfig, log_sim_rerun, save_sim_result, simulate_plan, with_init
@@ -361,9 +361,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         cents = np.asarray(traj.meta.get("part_centroids", np.asarray(model.part_centroids)), float)
         part_points = [p - cents[k] for k, p in enumerate(pts)]
         if cfg.plan_scan_surface:
-            surf = scan_surface_points(studio_dir / "scan", np.asarray(model.gaussians.means), np.asarray(model.gaussians.part_ids),
-                                       model.num_parts, views=model.meta.get("train_views"))  # fmt: skip
-            part_points = [p - cents[k] for k, p in enumerate(surf)]
+            part_points = [p - cents[k] for k, p in enumerate(model_scan_surface(model, studio_dir / "scan"))]
         hands = studio_hands_in_object_frame(studio_dir, traj.T_cam_obj)
         mesh_points = None
         if cfg.plan_extent_meshes:

@@ -35,5 +35,5 @@ from ._model import (
     make_extractor as make_extractor,
     save_object_model as save_object_model,
 )
-from ._surface import scan_surface_points as scan_surface_points
+from ._surface import model_scan_surface as model_scan_surface, scan_surface_points as scan_surface_points
 from ..splat._fit import FitConfig as FitConfig, FitResult as FitResult, fit_gaussians as fit_gaussians

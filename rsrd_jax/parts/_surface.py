@@ -121,6 +121,13 @@ def scan_surface_points(
     return out
 
 
+def model_scan_surface(model, capture_dir: str | Path) -> list[Float[np.ndarray, "_m 3"]]:
+    """`scan_surface_points` of an `ObjectModel` built from `capture_dir`: its Gaussian centres
+    and parts, the views it was trained on (`meta["train_views"]`)."""
+    return scan_surface_points(capture_dir, np.asarray(model.gaussians.means), np.asarray(model.gaussians.part_ids),
+                               model.num_parts, views=model.meta.get("train_views"))  # fmt: skip
+
+
 def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point per occupied `voxel` cell: the mean of the cell's points."""
     if voxel <= 0:
