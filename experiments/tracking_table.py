@@ -123,6 +123,7 @@ def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: lis
                 "frames_per_second": traj.meta["frames_per_second"],
                 "timings_s": traj.meta["timings_s"],
                 "fingertips": traj.meta["fingertips"],
+                "hand_anchors": traj.meta["hand_anchors"],
                 "frames": traj.num_frames,
                 "slide_hypotheses": traj.meta["joints"].get("slide_hypotheses", []),
                 "track_overrides": overrides or {},

@@ -14,6 +14,7 @@ from rsrd_jax.splat import (
     Gaussians,
     RenderConfig,
     apply_part_poses,
+    blend_weights,
     bins_for,
     choose_config,
     project_gaussians,
@@ -502,3 +503,18 @@ def test_chunk_carry_sums_each_tiles_earlier_or_later_chunks(rng, reverse):
     got = np.asarray(_chunk_carry(jnp.asarray(tot), layout, kc, reverse))
     np.testing.assert_allclose(got, want, atol=1e-5)
     assert np.all(got[n:] == 0.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_blend_weights_composite_the_dense_reference_at_pixel_centres(seed):
+    g = _scene(seed)
+    rng = np.random.default_rng(seed)
+    cam = _camera(_random_pose(rng))
+    ref = _reference(g, cam, jnp.zeros(3))
+    px = np.stack([rng.integers(0, W, 40), rng.integers(0, H, 40)], -1)
+    w = blend_weights(project_gaussians(g, cam), px + 0.5)
+    at = lambda k: np.asarray(ref[k])[px[:, 1], px[:, 0]]  # noqa: E731
+    np.testing.assert_allclose(w.sum(1), at("alpha"), atol=2e-5)
+    np.testing.assert_allclose(w @ np.asarray(g.features, np.float64), at("features"), atol=5e-5)
+    np.testing.assert_allclose(w @ np.asarray(g.colours, np.float64), at("rgb"), atol=5e-5)
+    assert (at("alpha") > 0.5).sum() > 10  # most sampled pixels are covered

@@ -975,3 +975,108 @@ def test_hand_depth_weight_acts_on_separable_objects_unless_asked_for_attached_o
     assert float(Weights.from_config(on, False, 0.05).hand_depth) == pytest.approx(0.2)
     assert float(Weights.from_config(cfg, True, 0.05).arap) == pytest.approx(cfg.separable_arap)
     assert float(Weights.from_config(cfg, False, 0.05).arap) == pytest.approx(cfg.weights.arap)
+
+
+@pytest.mark.parametrize("anchor_by", ["visible", "opacity"])
+def test_hand_anchor_takes_the_part_the_render_shows_not_the_denser_part_behind(rng, anchor_by):
+    """A small opaque plug in front of a dense brick (usb_plug's case on a rebuilt model): the
+    pinch over the plug sees the plug ("visible"), while the opacity share of the Gaussians
+    projecting near the pinch is the brick's ("opacity", sessions <= 39). A pinch beside the
+    object, over the brick's faint fringe only, anchors nothing when judged by the render; a
+    pinch on a thin strip (about 1 mm wide, nothing behind it: the render is opaque at the pinch point
+    but not at most points around it) is anchored to it."""
+    from types import SimpleNamespace
+
+    from rsrd_jax.geometry import project_points
+    from rsrd_jax.splat import Gaussians, blend_weights, project_gaussians, rest_part_poses
+    from rsrd_jax.geometry import Camera
+    from rsrd_jax.track._dpm import FrameObs
+    from rsrd_jax.track._hands import HandAnchors, update_hand_anchors
+
+    K, T_co, _ = _hand_scene()
+    brick = rng.uniform([-0.03, -0.03, 0.01], [0.03, 0.03, 0.03], (3000, 3))
+    plug = rng.uniform([-0.008, -0.008, -0.004], [0.008, 0.008, 0.0], (60, 3))
+    fringe = rng.uniform([0.045, -0.01, 0.01], [0.06, 0.01, 0.03], (12, 3))  # faint brick floaters
+    strip = np.stack([np.full(30, -0.05), np.linspace(-0.01, 0.01, 30), np.zeros(30)], -1)
+    means = np.concatenate([brick, plug, fringe, strip])
+    ids = np.r_[np.zeros(3000, np.int32), np.ones(60, np.int32), np.zeros(12, np.int32), np.ones(30, np.int32)]
+    opl = np.r_[np.full(3000, 2.0), np.full(60, 3.0), np.full(12, -2.0), np.full(30, 4.0)]
+    n = len(means)
+    log_scales = np.r_[np.full(3072, -5.5), np.full(30, -7.5)][:, None].repeat(3, 1)
+    g = Gaussians.create(means, np.tile([1.0, 0, 0, 0], (n, 1)), log_scales, opl, np.zeros((n, 3)), part_ids=ids)
+    cents = np.stack([brick.mean(0), plug.mean(0)])
+    tm = SimpleNamespace(gaussians=g, part_centroids=jnp.asarray(cents, jnp.float32), num_parts=2)
+    T_rest = rest_part_poses(jnp.asarray(cents, jnp.float32))
+    tips = np.asarray(project_points(K, T_co @ jnp.asarray([[0.0, 0.0, -0.002], [0.052, 0.0, 0.02], [-0.05, 0.0, 0.0]], jnp.float32))[0])
+    z = jnp.zeros(3)
+    obs = FrameObs(intrinsics=K, features=jnp.zeros((4, 4, 2)), weight=jnp.ones((4, 4)), rgb=jnp.zeros((4, 4, 3)), mono=jnp.zeros((4, 4)),
+                   bg_feature=jnp.zeros(2), bg_rgb=jnp.zeros(3), hand_uv=jnp.asarray(tips, jnp.float32), hand_seen=jnp.ones(3),
+                   hand_part=jnp.zeros(3, jnp.int32), hand_point=jnp.zeros((3, 3)), hand_weight=z, hand_surface=jnp.zeros((3, 3)),
+                   hand_depth=z, hand_depth_seen=z)  # fmt: skip
+    r = 6.0
+    # the scene is what the docstring says: the render under the pinch is the plug's, the
+    # Gaussians near it in the image are mostly the brick's, the fringe renders faint
+    w = blend_weights(project_gaussians(g, Camera(K, T_co)), tips)
+    assert w[0, ids == 1].sum() > 0.9 and w[1].sum() < 0.5 and w[2].sum() > 0.9
+    ring = 0.5 * r * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)], -1)
+    around = blend_weights(project_gaussians(g, Camera(K, T_co)), tips[2] + ring).sum(1)
+    assert (around < 0.5).sum() >= 4
+    puv = np.asarray(project_points(K, T_co @ jnp.asarray(means, jnp.float32))[0])
+    near = np.linalg.norm(puv - tips[0], axis=1) < r
+    op = 1 / (1 + np.exp(-opl))
+    assert op[near & (ids == 0)].sum() > 2 * op[near & (ids == 1)].sum()
+    anchors = update_hand_anchors(HandAnchors.empty(3), tm, T_rest, T_co, obs, t=0, radius_cells=r, anchor_by=anchor_by)
+    if anchor_by == "visible":
+        assert anchors.part.tolist() == [1, -1, 1]
+        sel = near & (ids == 1)
+        np.testing.assert_allclose(anchors.point[0], np.average(means[sel] - cents[1], axis=0, weights=op[sel]), atol=1e-5)
+    else:
+        assert anchors.part.tolist()[:2] == [0, 0]
+
+
+def test_contact_tree_is_a_maximum_spanning_tree_from_the_root(rng):
+    """`contact_tree` against brute force over every parent assignment of 5 parts: each non-root
+    part gets one parent, following the parents reaches the root, and the tree's contact weight
+    is the largest possible. The bear's case: a torso touching its arm more than its head (the
+    root) hangs from the head, the arm from the torso (the most-touching rule paired torso and
+    arm both ways: two joints that locked the arm). A part touching nothing has no parent."""
+    import itertools
+
+    from rsrd_jax.track._joints import contact_tree
+
+    def band_of(C):
+        labels, band = [], []
+        for a, b in itertools.combinations(range(len(C)), 2):
+            for _ in range(int(C[a, b])):
+                band.append([len(labels), len(labels) + 1])
+                labels += [a, b]
+        return np.asarray(labels), np.asarray(band).reshape(-1, 2)
+
+    for _ in range(20):
+        P = 5
+        C = np.triu(rng.integers(0, 6, (P, P)) * (rng.uniform(size=(P, P)) < 0.7), 1)
+        C = C + C.T
+        labels, band = band_of(C)
+        parent = contact_tree(labels, band, P, 0)
+        best = -1
+        for ps in itertools.product(range(P), repeat=P - 1):
+            par = dict(zip(range(1, P), ps))
+            ok = True
+            for k in range(1, P):  # reaches the root without a cycle, over touching parts
+                x, seen = k, set()
+                while x != 0 and ok:
+                    ok = x not in seen and C[x, par[x]] > 0
+                    seen.add(x)
+                    x = par[x]
+            if ok:
+                best = max(best, sum(C[k, p] for k, p in par.items()))
+        if best < 0:  # not connected: every part still gets at most one parent, no cycles
+            assert all(C[k, p] > 0 for k, p in parent.items()) and 0 not in parent
+            continue
+        assert sorted(parent) == list(range(1, P)) and sum(C[k, p] for k, p in parent.items()) == best
+    # the bear: 0 torso, 1 head (root), 2 arm, 3 a part touching nothing
+    C = np.zeros((4, 4))
+    C[0, 1], C[0, 2] = 20, 50
+    labels, band = band_of(C + C.T)
+    labels = np.r_[labels, 3]
+    assert contact_tree(labels, band, 4, 1) == {0: 1, 2: 0}

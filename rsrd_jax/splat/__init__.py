@@ -21,6 +21,7 @@ from ._project import (
     NEAR_PLANE as NEAR_PLANE,
     TRANSMITTANCE_THRESHOLD as TRANSMITTANCE_THRESHOLD,
     Projected as Projected,
+    blend_weights as blend_weights,
     project_gaussians as project_gaussians,
 )
 from ._raster import (

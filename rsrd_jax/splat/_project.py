@@ -13,6 +13,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ..geometry import Camera
@@ -135,3 +136,39 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> Projected:
         extent=jnp.where(visible[:, None], ext, 0.0),
         visible=visible,
     )
+
+
+def blend_weights(proj: Projected, points: np.ndarray) -> np.ndarray:
+    """Each Gaussian's blending weight αᵢ·Tᵢ at screen points, as the rasterizer composites a
+    pixel centred there (host, NumPy; for a few points, e.g. which part the render shows under a
+    detected fingertip).
+
+    The same rules as the tiled path: front to back by depth, α = min(MAX_ALPHA, o·exp(−σ)) with
+    σ = ½(a·dx² + c·dy²) + b·dx·dy, pairs with σ < 0 or α < ALPHA_THRESHOLD skipped, and the
+    exclusive stop at TRANSMITTANCE_THRESHOLD.
+
+    Args:
+        proj: projected Gaussians (N).
+        points: (k, 2) screen positions in pixels (pixel centres at +0.5).
+
+    Returns:
+        (k, N) weights; a row sums to the rendered alpha there.
+    """
+    xy, depth = np.asarray(proj.xy, np.float64), np.asarray(proj.depth, np.float64)
+    conic, opac = np.asarray(proj.conic, np.float64), np.asarray(proj.opacity, np.float64)
+    vis = np.flatnonzero(np.asarray(proj.visible))
+    vis = vis[np.argsort(depth[vis], kind="stable")]
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    out = np.zeros((len(pts), len(xy)))
+    for k, p in enumerate(pts):
+        dx, dy = p[0] - xy[vis, 0], p[1] - xy[vis, 1]
+        a, b, c = conic[vis, 0], conic[vis, 1], conic[vis, 2]
+        sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+        alpha = np.minimum(MAX_ALPHA, opac[vis] * np.exp(-np.maximum(sigma, 0.0)))
+        alpha = np.where((sigma >= 0) & (alpha >= ALPHA_THRESHOLD), alpha, 0.0)
+        T_after = np.cumprod(1.0 - alpha)
+        T_before = np.concatenate([[1.0], T_after[:-1]])
+        keep = T_after > TRANSMITTANCE_THRESHOLD  # exclusive stop: the Gaussian that would cross it is not added
+        keep &= np.concatenate([[True], np.cumprod(keep)[:-1].astype(bool)])
+        out[k, vis] = np.where(keep, alpha * T_before, 0.0)
+    return out

@@ -207,8 +207,15 @@ class TrackConfig(eqx.Module):
     slide_min_m: float = 0.005
     """Smallest displacement relative to the neighbour (first pass) for a slide joint."""
     hand_anchor_cells: float = 1.0
-    """Hand term: a hand is anchored to the part with the largest share of the Gaussians
-    projecting within this many feature cells of its pinch point (`track._hands`)."""
+    """Hand term: the radius (feature cells) about a pinch point over which the held part is
+    judged (`hand_anchor_by`) and whose Gaussians of that part give the held point
+    (`track._hands`)."""
+    hand_anchor_by: str = "visible"
+    """Hand term: how the held part is chosen. "visible": the part the render shows under the
+    pinch point (blend weights at it and around it, `splat.blend_weights`; anchored once the
+    render is at least half opaque at one of those points); "opacity" (sessions ≤ 39): the largest
+    opacity-weighted share of the Gaussians projecting near it, in front of or behind the
+    pinched part alike (a rebuilt usb_plug model gave the plug's hand to the brick behind it)."""
     hand_scale_cells: float = 0.5
     """Barron scale c of the hand term's reprojection distance, feature cells."""
     hand_alpha: float = 0.0

@@ -6,10 +6,15 @@ detected thumb and index tips: the fingers sit on either side of the pinched par
 midpoint is the image of a point inside it (a fingertip alone is a finger radius or more off
 the surface, in depth too, which biases the part's rotation as it turns: on the studio red box a
 per-fingertip anchor took the lid from 14 to 24 mm). A hand is anchored on the first frame where
-its pinch point lies over the object: the part with the largest opacity-weighted share of the
-Gaussians projecting within `radius` feature cells of it holds it, and the held point is the
-opacity-weighted mean of that part's Gaussians there (part frame: the centre of the part's
-cross-section along the ray, since a 2D detection does not give the depth). From the next frame
+the render about its pinch point is at least half opaque (at the pinch point or at one of six
+points around it, half `radius` feature cells out: a thin part seen a little off, as a
+sunglasses arm, covers only some of them): the part the render shows there (its share of the
+blend weights summed over the seven points) holds it, and the held point is the
+opacity-weighted mean of that part's Gaussians projecting within `radius` cells (part frame: the
+centre of the part's cross-section along the ray, since a 2D detection does not give the
+depth). Judged by the Gaussians projecting near the pinch point instead
+(`TrackConfig.hand_anchor_by="opacity"`), a dense part behind the pinched one can outweigh it: on
+a rebuilt usb_plug model the plug's hand went to the brick. From the next frame
 on the hand term (`hand_loss`) pulls that point's projection onto the pinch point. Anchors are
 kept for the rest of the video: a release (the hand letting go) is not detected; the robust loss
 bounds the pull of a hand that moved away.
@@ -25,8 +30,8 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from ..geometry import project_points
-from ..splat import apply_part_poses
+from ..geometry import Camera, project_points
+from ..splat import apply_part_poses, blend_weights, project_gaussians
 from ._dpm import FrameObs
 
 
@@ -81,10 +86,14 @@ def update_hand_anchors(
     t: int,
     radius_cells: float,
     min_gaussians: int = 3,
+    anchor_by: str = "visible",
+    min_alpha: float = 0.5,
 ) -> HandAnchors:
     """Anchors every hand detected in `obs` that has no anchor yet, at the solved part poses
     `T_obj_part` of frame `t` (see the module docstring). `tm` is a `TrackModel` (its
     `gaussians`, `part_centroids` and `num_parts` are used). Returns a new `HandAnchors`."""
+    if anchor_by not in ("visible", "opacity"):
+        raise ValueError(f"anchor_by must be 'visible' or 'opacity', got {anchor_by!r}")
     seen = np.asarray(obs.hand_seen) > 0
     todo = seen & ~anchors.anchored
     if not todo.any():
@@ -96,15 +105,28 @@ def update_hand_anchors(
     op = np.asarray(jax.nn.sigmoid(tm.gaussians.opacity_logits), np.float64)
     local = np.asarray(tm.gaussians.means, np.float64) - np.asarray(tm.part_centroids, np.float64)[ids]
     tips = np.asarray(obs.hand_uv, np.float64)
+    # what the render shows under each pinch point: blend weights at the point and at six
+    # around it, half the radius out (a pinch detection is a point of a few pixels' accuracy)
+    ring = 0.5 * radius_cells * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)], -1)
+    spots = np.concatenate([np.zeros((1, 2)), ring])
+    proj = project_gaussians(posed, Camera(obs.intrinsics, T_cam_obj))
     surface = anchors.point.copy() if anchors.surface is None else anchors.surface.copy()
     out = HandAnchors(anchors.part.copy(), anchors.point.copy(), anchors.frame.copy(), surface)
     for k in np.flatnonzero(todo):
+        if anchor_by == "visible":
+            w = blend_weights(proj, tips[k] + spots)
+            if w.sum(1).max() < min_alpha:  # the render is not half opaque anywhere about the pinch
+                continue
+            share = np.bincount(ids, weights=w.sum(0), minlength=tm.num_parts)
         near = (np.linalg.norm(uv - tips[k], axis=1) < radius_cells) & (z > 0) & (op > 0.05)
         if near.sum() < min_gaussians:
             continue
-        share = np.bincount(ids[near], weights=op[near], minlength=tm.num_parts)
+        if anchor_by == "opacity":
+            share = np.bincount(ids[near], weights=op[near], minlength=tm.num_parts)
         p = int(np.argmax(share))
         sel = near & (ids == p)
+        if not sel.any():
+            continue
         out.part[k] = p
         out.point[k] = np.average(local[sel], axis=0, weights=op[sel])
         front = sel & (z <= np.quantile(z[sel], 0.25))

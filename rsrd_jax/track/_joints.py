@@ -53,30 +53,46 @@ def contact_band_pairs(means: np.ndarray, labels: np.ndarray, radius: float, nea
     return np.unique(np.concatenate(out), axis=0)
 
 
+def contact_tree(labels: np.ndarray, band: np.ndarray, num_parts: int, root: int) -> dict[int, int]:
+    """Each part's parent in the maximum spanning tree of the contact graph (edge weight: the
+    two parts' contact-band pairs), grown from `root`; a part not connected to it hangs from the
+    largest part of its own component (that part has no parent). Every part is tied to one other
+    at most once: a "most-touching neighbour" can make two parts each other's neighbour (a bear's
+    torso touching its arm more than its head, the root), and two joints between the same parts
+    lock them together."""
+    C = np.zeros((num_parts, num_parts))
+    np.add.at(C, (labels[band[:, 0]], labels[band[:, 1]]), 1.0)
+    C = C + C.T
+    size = np.bincount(labels, minlength=num_parts)
+    parent: dict[int, int] = {}
+    done = np.zeros(num_parts, bool)
+    done[root] = True
+    while not done.all():
+        w = np.where(done[:, None] & ~done[None, :], C, 0.0)
+        if w.max() > 0:
+            a, b = np.unravel_index(int(np.argmax(w)), w.shape)
+            parent[int(b)] = int(a)
+            done[b] = True
+        else:  # no contact with the tree so far: a new component, rooted at its largest part
+            done[int(np.argmax(np.where(done, -1, size)))] = True
+    return parent
+
+
 def with_joint_slots(model, radius: float, near: float):
     """The model with contact-band ARAP pairs and, for every part that touches another, two
-    invisible Gaussians (the part's and its most-touching neighbour's) at the centre of their
-    contact, paired with each other. Returns (model, neighbour: dict part -> neighbour part).
-    The largest part (the tracker's root) gets no slot of its own: every part touching it is tied
-    to it by that part's slot."""
+    invisible Gaussians (the part's and its parent's) at the centre of their contact, paired
+    with each other. Parents: `contact_tree` from the largest part (the tracker's root), which
+    gets no slot of its own. Returns (model, neighbour: dict part -> parent part)."""
     g = model.gaussians
     means = np.asarray(g.means, np.float64)
     labels = np.asarray(g.part_ids)
     P = model.num_parts
     band = contact_band_pairs(means, labels, radius, near)
     root = int(np.argmax(np.bincount(labels, minlength=P)))
-    neighbour: dict[int, int] = {}
+    neighbour = contact_tree(labels, band, P, root) if P > 1 else {}
     centres, ids = [], []
-    for k in range(P):
-        if k == root and P > 1:
-            continue
-        mine = band[(labels[band[:, 0]] == k) | (labels[band[:, 1]] == k)]
-        if len(mine) == 0:
-            continue
-        other = np.where(labels[mine[:, 0]] == k, labels[mine[:, 1]], labels[mine[:, 0]])
-        nb = int(np.bincount(other, minlength=P).argmax())
-        mine = mine[other == nb]
-        neighbour[k] = nb
+    for k, nb in sorted(neighbour.items()):
+        mine = band[((labels[band[:, 0]] == k) & (labels[band[:, 1]] == nb)) | ((labels[band[:, 1]] == k) & (labels[band[:, 0]] == nb))]
         centres += [0.5 * (means[mine[:, 0]] + means[mine[:, 1]]).mean(0)] * 2
         ids += [k, nb]
     n, m = g.num_gaussians, len(ids)

@@ -296,7 +296,8 @@ def track_video(
                         calib[h].append(z[h] - float(raw.hand_depth[h]))
                         if len(calib[h]) >= config.hand_depth_calibration:
                             offset[h] = float(np.median(calib[h]))
-                anchors = update_hand_anchors(anchors, tm, T, T_cam_obj, obs, t, config.hand_anchor_cells)
+                anchors = update_hand_anchors(anchors, tm, T, T_cam_obj, obs, t, config.hand_anchor_cells,
+                                                  anchor_by=config.hand_anchor_by)
             T_parts.append(T)
             obs_all.append(obs)
             residual.append(np.asarray(aux["part_residual"]))
