@@ -105,11 +105,12 @@ def update_hand_anchors(
     op = np.asarray(jax.nn.sigmoid(tm.gaussians.opacity_logits), np.float64)
     local = np.asarray(tm.gaussians.means, np.float64) - np.asarray(tm.part_centroids, np.float64)[ids]
     tips = np.asarray(obs.hand_uv, np.float64)
-    # what the render shows under each pinch point: blend weights at the point and at six
-    # around it, half the radius out (a pinch detection is a point of a few pixels' accuracy)
-    ring = 0.5 * radius_cells * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)], -1)
-    spots = np.concatenate([np.zeros((1, 2)), ring])
-    proj = project_gaussians(posed, Camera(obs.intrinsics, T_cam_obj))
+    if anchor_by == "visible":
+        # what the render shows under each pinch point: blend weights at the point and at six
+        # around it, half the radius out (a pinch detection is a point of a few pixels' accuracy)
+        ring = 0.5 * radius_cells * np.stack([np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)], -1)
+        spots = np.concatenate([np.zeros((1, 2)), ring])
+        proj = project_gaussians(posed, Camera(obs.intrinsics, T_cam_obj))
     surface = anchors.point.copy() if anchors.surface is None else anchors.surface.copy()
     out = HandAnchors(anchors.part.copy(), anchors.point.copy(), anchors.frame.copy(), surface)
     for k in np.flatnonzero(todo):

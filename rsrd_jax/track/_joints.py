@@ -89,7 +89,7 @@ def with_joint_slots(model, radius: float, near: float):
     P = model.num_parts
     band = contact_band_pairs(means, labels, radius, near)
     root = int(np.argmax(np.bincount(labels, minlength=P)))
-    neighbour = contact_tree(labels, band, P, root) if P > 1 else {}
+    neighbour = contact_tree(labels, band, P, root)
     centres, ids = [], []
     for k, nb in sorted(neighbour.items()):
         mine = band[((labels[band[:, 0]] == k) & (labels[band[:, 1]] == nb)) | ((labels[band[:, 1]] == k) & (labels[band[:, 0]] == nb))]
