@@ -7,6 +7,7 @@ import jax
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from rsrd_jax.grasp import (
     GraspConfig,
@@ -484,3 +485,115 @@ def test_patch_normals_do_not_mix_the_sides_of_a_thin_plate_or_a_box_edge():
     out = patch_normals(padded, 0.008)
     np.testing.assert_allclose(out[: len(tri)], own, atol=1e-9)
     assert np.all(out[len(tri) :] == 0.0)
+
+
+def _rotated_down(seed: int):
+    """A random part frame: points are generated in a table frame (z up) and expressed in a part
+    frame rotated by R, so ``down`` is not an axis of the part frame."""
+    R = trimesh.transformations.random_rotation_matrix(np.random.default_rng(seed).random(3))[:3, :3]
+    return R, R.T @ np.array([0.0, 0.0, -1.0])  # p_part = R.T p_table
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_topdown_grasps_pinch_a_flat_bar_across_its_outline_from_above(seed):
+    """A 40 × 12 × 4 mm bar lying on the table (surface points, any part frame): every grasp has a
+    level axis, the untilted rows approach straight down, contacts lie on the bar's long sides
+    (the 12 mm width; the 40 mm length also fits the 50 mm jaw, so grasps across the ends are
+    allowed but must then be 40 mm wide), the grasp centre sits at the bar's mid-height, and
+    axis-sign flips and tilts are rotations about the documented axes."""
+    from rsrd_jax.grasp import TopDownConfig, sample_topdown_grasps
+
+    R, down = _rotated_down(seed)
+    half = np.array([0.02, 0.006, 0.002])
+    pts, _ = trimesh.sample.sample_surface(trimesh.creation.box(2 * half), 4000, seed=seed)
+    pts = pts + half * [0, 0, 1] + [0.01, -0.02, 0.0]  # lying on z = 0 of the table frame
+    g = sample_topdown_grasps(pts @ R, down, seed=seed)  # rows: p_part = R.T p -> (p @ R)
+    assert g.result == GraspResult.success
+    cfg = TopDownConfig()
+    nt = len(cfg.tilts_deg)
+    valid = np.asarray(g.valid)
+    assert valid.sum() >= 2 * nt * 8 and valid.shape == (cfg.num_grasps * 2 * nt,)
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)] @ R.T - [0.01, -0.02, 0.0]  # back in the bar's frame
+    w = np.linalg.norm(c[:, 1] - c[:, 0], axis=1)
+    across = np.abs(np.abs(c[..., 1]) - half[1]).max(1) < 0.0015  # both contacts on the long sides
+    ends = np.abs(np.abs(c[..., 0]) - half[0]).max(1) < 0.0015
+    assert np.all(across | ends) and across.sum() >= 8
+    np.testing.assert_allclose(w[across], 2 * half[1], atol=0.002)
+    np.testing.assert_allclose(w[ends], 2 * half[0], atol=0.002)
+    np.testing.assert_allclose(c[..., 2], half[2], atol=0.0015)  # mid-height
+    Tg = np.asarray(g.T_part_grasp)[valid]
+    Rg = Rotation.from_quat(Tg[:, [1, 2, 3, 0]]).as_matrix()  # part frame
+    x, z = Rg[:, :, 0], Rg[:, :, 2]
+    np.testing.assert_allclose(x @ down, 0.0, atol=1e-5)  # level grasp axes
+    tilt = np.degrees(np.arccos(np.clip(z @ down, -1.0, 1.0)))
+    per = tilt.reshape(-1, 2, nt)
+    for j, a in enumerate(cfg.tilts_deg):
+        np.testing.assert_allclose(per[:, :, j], abs(a), atol=1e-3)
+    xs = x.reshape(-1, 2, nt, 3)
+    np.testing.assert_allclose(xs[:, 1], -xs[:, 0], atol=1e-5)  # sign flip reverses the axis
+    np.testing.assert_allclose(np.asarray(g.width)[valid], np.repeat(w, 2 * nt), atol=1e-6)
+    centre = Tg[:, 4:] @ R.T - [0.01, -0.02, 0.0]
+    np.testing.assert_allclose(centre[:, 2], half[2], atol=0.0015)
+
+
+def test_topdown_footprint_keeps_holes_a_pad_fits_and_fills_the_rest():
+    """A flat ring (outer radius 20 mm, hole radius 10 mm) has grasps across its 10 mm wall (one
+    pad in the hole) and across the whole ring (40 mm); a disc with a 1.5 mm pinhole (sparse
+    Gaussians leave such gaps) is one solid footprint: no contact lies on the pinhole."""
+    from rsrd_jax.grasp import TopDownConfig, sample_topdown_grasps
+
+    rng = np.random.default_rng(0)
+    def annulus(r0, r1, n):
+        r = np.sqrt(rng.uniform(r0**2, r1**2, n))
+        a = rng.uniform(0, 2 * np.pi, n)
+        return np.stack([r * np.cos(a), r * np.sin(a)], -1)
+
+    def slab(xy, h=0.004):  # top and bottom faces plus the walls' heights in between
+        z = rng.choice([0.0, h], len(xy))
+        return np.concatenate([xy, z[:, None]], 1)
+
+    ring = slab(annulus(0.010, 0.020, 12000))
+    g = sample_topdown_grasps(ring, np.array([0.0, 0.0, -1.0]), config=TopDownConfig(num_grasps=64, friction_angle_deg=20.0))
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)]
+    w = np.linalg.norm(c[:, 1] - c[:, 0], axis=1)
+    r = np.linalg.norm(c[..., :2], axis=-1)
+    wall = np.isclose(w, 0.010, atol=0.002)
+    whole = np.isclose(w, 0.040, atol=0.002)
+    assert wall.sum() >= 5 and whole.sum() >= 5 and np.all(wall | whole)
+    inner = np.sort(r[wall], axis=1)  # one contact on the hole's rim, one on the outer rim
+    np.testing.assert_allclose(inner[:, 0], 0.010, atol=0.0015)
+    np.testing.assert_allclose(inner[:, 1], 0.020, atol=0.0015)
+    np.testing.assert_allclose(r[whole], 0.020, atol=0.0015)
+    disc = slab(annulus(0.0015, 0.015, 12000))
+    g2 = sample_topdown_grasps(disc, np.array([0.0, 0.0, -1.0]), config=TopDownConfig(num_grasps=64))
+    c2 = np.asarray(g2.contacts)[np.asarray(g2.base_valid)]
+    assert len(c2) >= 8
+    np.testing.assert_allclose(np.linalg.norm(c2[..., :2], axis=-1), 0.015, atol=0.0015)
+
+
+def test_topdown_near_point_and_bad_inputs():
+    """With ``near`` every first contact lies within the radius of the point (in the footprint
+    plane); a part wider than the jaw everywhere has no grasp (a result, not an error); bad
+    points, ``down`` and options are refused."""
+    from rsrd_jax.grasp import TopDownConfig, sample_topdown_grasps
+
+    half = np.array([0.02, 0.006, 0.002])
+    pts, _ = trimesh.sample.sample_surface(trimesh.creation.box(2 * half), 4000, seed=0)
+    down = np.array([0.0, 0.0, -1.0])
+    p = np.array([0.015, 0.0, 0.0])
+    g = sample_topdown_grasps(pts, down, near=(p, 0.01))
+    c = np.asarray(g.contacts)[np.asarray(g.base_valid)]
+    assert len(c) >= 3
+    assert np.all(np.linalg.norm(c[:, 0, :2] - p[:2], axis=1) <= 0.01 + 0.001)
+    big = np.array([0.04, 0.035, 0.002])
+    pts_big, _ = trimesh.sample.sample_surface(trimesh.creation.box(2 * big), 4000, seed=0)
+    none = sample_topdown_grasps(pts_big, down)
+    assert none.result != GraspResult.success and not np.any(np.asarray(none.valid))  # only corner-to-side pairs fit
+    with pytest.raises(ValueError, match="points"):
+        sample_topdown_grasps(np.zeros((0, 3)), down)
+    with pytest.raises(ValueError, match="points"):
+        sample_topdown_grasps(np.full((5, 3), np.nan), down)
+    with pytest.raises(ValueError, match="down"):
+        sample_topdown_grasps(pts, np.zeros(3))
+    with pytest.raises(ValueError, match="config"):
+        sample_topdown_grasps(pts, down, config=TopDownConfig(max_width=0.0))

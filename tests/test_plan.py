@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rsrd_jax.grasp import GraspConfig, GraspResult, PartGrasps
+from rsrd_jax.grasp import GraspConfig, GraspResult, PartGrasps, TopDownConfig
 from rsrd_jax.io import ArtefactError, load_plan, save_plan
 from rsrd_jax.plan import (
     CollisionData,
@@ -736,6 +736,42 @@ def test_fingertip_grasp_of_a_flat_part_uses_the_pad_table_allowance(robot):
     assert 0.001 - 2e-4 <= min(dist) < 0.003
 
 
+def test_a_blade_lying_flat_is_held_from_above_by_a_topdown_grasp(robot):
+    """A 50 × 14 × 6 mm blade lying on the table, known only by a sheet of points at its mid-plane
+    (as the Gaussian centres of a thin part): the mesh sampler's grasps pinch across the sheet
+    with a side approach into the table and none seats; with the top-down sampling (the default)
+    the plan holds it from above across its 14 mm width (tier 2, ``topdown_grasp``). MuJoCo's own
+    distances: at the grasp keyframe both pads are clear of the blade (a box) with the jaw
+    5 mm wider than the planned width and within 0.5 mm of it at the planned width, and no pad
+    is below the table."""
+    import mujoco
+
+    u, v = np.meshgrid(np.linspace(-0.025, 0.025, 51), np.linspace(-0.007, 0.007, 15))
+    pts = np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], -1)
+    traj = np.asarray([jaxlie.SE3.from_translation(jnp.asarray([0.03 * s, 0.0, 0.003])).wxyz_xyz
+                       for s in np.linspace(0, 1, 6)])[:, None]
+    cfg = dataclasses.replace(CFG, collision_margin=0.003, grasp_config=GraspConfig(num_grasps=8),
+                              spread_grasp_config=GraspConfig(num_grasps=8, min_separation=0.012), hand_grasp_config=None,
+                              topdown_grasp_config=TopDownConfig(num_grasps=8), max_candidates=64)  # fmt: skip
+    without = plan_robot(robot, [pts], traj, T_ROBOT_OBJ, config=dataclasses.replace(cfg, topdown_grasp_config=None))
+    assert not without.success
+    plan = plan_robot(robot, [pts], traj, T_ROBOT_OBJ, config=cfg)
+    assert plan.success, (plan.message, plan.info["rejections"])
+    assert plan.info["chosen"]["topdown_grasp"] and not plan.info["chosen"]["spread_grasp"]
+    assert plan.grasp_width[0] == pytest.approx(0.014, abs=0.002)
+    T_robot_blade = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(traj[0, 0]))).wxyz_xyz)
+    clearance = _right_pads_to_box(robot, (0.025, 0.007, 0.003), T_robot_blade)
+    q0 = plan.q_keyframes[0]
+    w = float(plan.grasp_width[0]) / 2
+    assert clearance(q0, w + 0.005) > 0.002
+    assert abs(clearance(q0, w)) < 0.0005 + 0.001  # the pads close on the blade's sides
+    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
+    d.qpos[:] = robot.qpos(q0)
+    mujoco.mj_forward(m, d)
+    table = m.geom("table").id
+    assert min(mujoco.mj_geomDistance(m, d, m.geom(n).id, table, 0.05, None) for n in ("pad_r_finger_r", "pad_r_finger_l")) > 0
+
+
 def test_approach_opens_the_jaw_as_wide_as_the_neighbouring_part_allows(robot):
     """A still bar lies beside the grasped flat bar (its near face 22 mm from the grasp centre):
     the fully open pads (25 mm from the centre) would land on it, and so would pads opened 8 mm
@@ -795,9 +831,12 @@ def test_spread_grasps_come_after_the_best_scored_ones():
     alive = np.array([True, True, False, True, True, True])
     per_arm = [(0, 1, b, alive, np.zeros((n, 3, 2, 7)), None)]
     args = (None, None, None, None, PlanConfig(), False, 0.025, {}, {})
-    tiered = _combine(per_arm, *args, {1: 3})
+    tiered = _combine(per_arm, *args, {1: (3,)})
     assert [c["arms"][0][2] for c in tiered] == [1, 0, 3, 4, 5]
     assert [c["tier"] for c in tiered] == [0, 0, 1, 1, 1]
+    three = _combine(per_arm, *args, {1: (3, 4)})  # rows from 4 on: the top-down set, after the spread one
+    assert [c["arms"][0][2] for c in three] == [1, 0, 3, 4, 5]
+    assert [c["tier"] for c in three] == [0, 0, 1, 2, 2]
     by_cost = _combine(per_arm, *args, {})  # no spread set (grasps given): cost order
     assert [c["arms"][0][2] for c in by_cost] == [3, 1, 4, 5, 0] and all(c["tier"] == 0 for c in by_cost)
 

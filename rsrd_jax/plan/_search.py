@@ -19,7 +19,8 @@ import jaxlie
 import numpy as np
 from jaxtyping import Float
 
-from ..grasp import GraspConfig, MeshConfig, PartGrasps, build_part_mesh, merge_grasps, sample_antipodal_grasps
+from ..grasp import (GraspConfig, MeshConfig, PartGrasps, TopDownConfig, build_part_mesh, merge_grasps,
+                     sample_antipodal_grasps, sample_topdown_grasps)
 from ..hands import PartRanking, RankConfig, rank_parts
 from ..robot import HOME_Q, ObjectGeometry, YumiModel, collision_distances, object_boxes_from_points, tcp_poses
 from ._costs import (
@@ -225,6 +226,14 @@ class PlanConfig(eqx.Module):
     reach only where its surface is large: on the tracked toy_drawer (session 30) the drawer's
     centroid lies on its front panel, its best grasps 36 mm (mean) from the knob the hand
     pulled, and 20 of 4464 valid grasps seated; None = off."""
+    topdown_grasp_config: TopDownConfig | None = TopDownConfig()
+    """A fourth sampling of each part: level pinches across its footprint seen from above,
+    approached from above (:func:`rsrd_jax.grasp.sample_topdown_grasps`, the table's normal taken
+    in the part's frame at the first keyframe), merged after the spread set and used only when no
+    grasp of the first three sets survives (tier 2). The mesh sampler's grasps on a part lying
+    flat pinch across its thickness with a side approach through the table (the tracked studio
+    scissors: 1 of 128 base grasps has a level axis, none seats; with these its blade is held
+    from above at its ring and the demo succeeds in simulation); None = off."""
     hand_grasp_radius: float = 0.02
     """Radius (m) around each hand's point within which ``hand_grasp_config`` samples."""
     mesh_config: MeshConfig = MeshConfig()
@@ -817,6 +826,8 @@ def _plan_robot(
     grasp_cache: dict[int, PartGrasps] = dict(grasps or {})
     spread_row: dict[int, int] = {}  # part -> first row of its spread grasps (after the best-scored ones)
     hand_row: dict[int, int] = {}  # part -> first row of its grasps near the hands (between the two)
+    topdown_row: dict[int, int] = {}  # part -> first row of its top-down grasps (after the spread set)
+    table_down = -np.asarray(jaxlie.SE3(jnp.asarray(robot.geom.table_wxyz_xyz)).rotation().as_matrix(), np.float64)[:, 2]
     key = jax.random.PRNGKey(config.seed)
 
     def get_grasps(k: int) -> PartGrasps:
@@ -834,6 +845,12 @@ def _plan_robot(
             spread_row[k] = int(g.T_part_grasp.shape[0])
             if config.spread_grasp_config is not None:
                 g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, config.spread_grasp_config))
+            topdown_row[k] = int(g.T_part_grasp.shape[0])
+            if config.topdown_grasp_config is not None:
+                R0 = np.asarray(_se3(T_robot_part[0, k]).rotation().as_matrix(), np.float64)
+                down = R0.T @ table_down
+                pk = np.asarray((part_points if mesh_points is None else mesh_points)[k])
+                g = merge_grasps(g, sample_topdown_grasps(pk, down, config.seed * 1009 + k, config.topdown_grasp_config))
             grasp_cache[k] = g
         return grasp_cache[k]
 
@@ -929,7 +946,7 @@ def _plan_robot(
                 last_stage = _furthest(last_stage, stage)
                 continue
             cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info,
-                            spread_row)
+                            {k: (spread_row[k], topdown_row[k]) for k in spread_row})
             if cand is None:
                 last_stage = _furthest(last_stage, att.get("failed_stage", "collision"))
                 continue
@@ -958,9 +975,10 @@ def _plan_robot(
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
         return _failure(res, msg, T_robot_obj, idx, info)
     info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
-    info["chosen"]["spread_grasp"] = bool(best["tier"])
+    info["chosen"]["spread_grasp"] = best["tier"] == 1
     info["chosen"]["hand_grasp"] = [bool(k >= 0 and hand_row.get(int(k), np.inf) <= i < spread_row.get(int(k), -1))
                                     for k, i in zip(best["part"], best["grasp_index_arr"])]  # fmt: skip
+    info["chosen"]["topdown_grasp"] = best["tier"] == 2
     info["hand_points_mm"] = [[int(k), [round(1e3 * float(v), 2) for v in x]] for k, x in (hand_points or [])]
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
                                      for k, i in zip(best["part"], best["grasp_index_arr"])]
@@ -1011,12 +1029,19 @@ def _top_per_base(ids: np.ndarray, base_index: np.ndarray, k: int, per_base: int
     return np.asarray((first + rest)[:k], int)
 
 
+def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):
+    """Tier of row(s) ``i`` of part ``k``'s grasps: how many of its tier start rows they reach."""
+    i = np.asarray(i)
+    return sum(((i >= r).astype(int) for r in tier_rows.get(k, ())), np.zeros(i.shape, int))
+
+
 def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info,
-             spread_row: dict[int, int]):
+             tier_rows: dict[int, tuple[int, ...]]):
     """Single arm: survivors ordered by (tier, cost). Bimanual: top-k × top-k joint solves.
-    Tier 1 = a grasp of the spread set (row ≥ ``spread_row[k]``): used only after every
-    best-scored grasp (tier 0)."""
-    tier = lambda k, i: (np.asarray(i) >= spread_row.get(k, np.iinfo(np.int64).max)).astype(int)  # noqa: E731
+    Tier t = the number of ``tier_rows[k]`` (first rows of the spread set, then of the top-down
+    set) at or before the grasp's row: a spread grasp is used only after every best-scored grasp
+    (tier 0), a top-down grasp only after both."""
+    tier = lambda k, i: _tier(tier_rows, k, i)  # noqa: E731
 
     def order(k, b, alive):
         ids = np.nonzero(alive)[0]
@@ -1097,7 +1122,7 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     """Approach segments for the best candidates (batched; ``approach_candidates`` per tier, so a
     spread grasp still gets its approach when every best-scored one fails); the first that passes
     wins."""
-    cands = [c for t in (0, 1) for c in [c for c in cands if c["tier"] == t][: cfg.approach_candidates]]
+    cands = [c for t in range(3) for c in [c for c in cands if c["tier"] == t][: cfg.approach_candidates]]
     A = max(2, cfg.approach_steps)
     n = len(cands)
     s = np.linspace(0.0, 1.0, A)
