@@ -227,12 +227,16 @@ def merge(paths: list[Path]) -> dict:
     return summarise(res)
 
 
-def _commit() -> str | None:
+def _commit(root: Path | None = None) -> str | None:
+    """The commit of the code a run imports (``git rev-parse HEAD`` of ``root``, the repository
+    holding this file by default), with ``-dirty`` when tracked files of ``rsrd_jax/`` or this
+    script differ from it; None outside a git checkout."""
     import subprocess
 
+    root = Path(__file__).resolve().parent.parent if root is None else Path(root)
     try:
         git = lambda *a: subprocess.run(["git", *a], capture_output=True, text=True, check=True,  # noqa: E731
-                                        cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
+                                        cwd=root).stdout.strip()  # fmt: skip
         dirty = git("status", "--porcelain", "--untracked-files=no", "--", "rsrd_jax", "experiments/robot_trials.py")
         return git("rev-parse", "HEAD") + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):

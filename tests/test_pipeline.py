@@ -140,6 +140,35 @@ def test_robot_trials_resume_reuses_only_complete_artefacts_tracked_with_this_co
     assert cfg.track_config().weights.motion == cfg.track_motion and cfg.track_config().joints == cfg.track_joints
 
 
+def test_robot_trials_record_a_dirty_commit_only_for_changed_code(tmp_path):
+    """The recorded commit is the checkout's HEAD, with ``-dirty`` when a tracked file of the
+    package or the script differs (the pathspecs are the repository's, not the script folder's:
+    before session 41 a run with edited ``rsrd_jax/`` files recorded a clean commit)."""
+    import subprocess
+
+    from experiments.robot_trials import _commit
+
+    git = lambda *a: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *a], cwd=tmp_path,  # noqa: E731
+                                    check=True, capture_output=True, text=True).stdout.strip()  # fmt: skip
+    assert _commit(tmp_path) is None  # not a checkout
+    git("init", "-q")
+    for f in ("rsrd_jax/a.py", "experiments/robot_trials.py", "README.md"):
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text("x = 1\n")
+    git("add", "-A")
+    git("commit", "-qm", "c")
+    head = git("rev-parse", "HEAD")
+    assert _commit(tmp_path) == head
+    (tmp_path / "README.md").write_text("changed\n")  # not code
+    (tmp_path / "rsrd_jax" / "new.py").write_text("")  # untracked
+    assert _commit(tmp_path) == head
+    for f in ("rsrd_jax/a.py", "experiments/robot_trials.py"):
+        (tmp_path / f).write_text("x = 2\n")
+        assert _commit(tmp_path) == head + "-dirty"
+        git("checkout", "--", f)
+    assert _commit(tmp_path) == head
+
+
 def test_tracking_table_pipeline_rows_are_the_pipelines_tracking():
     """The table's "pipeline" row tracks as `rsrd-jax demo` does (`PipelineConfig.track_config()`,
     with the studio fingertips), its ablations drop the hand term or the motion prior, and the
