@@ -6,6 +6,7 @@ Recipes that combine stages live here, not in the library.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -328,6 +329,8 @@ def cmd_plan(a: argparse.Namespace) -> int:
     )  # fmt: skip
     if a.square_grasps:
         cfg = cfg.with_square_grasps(cone_deg=a.square_cone)
+    if a.no_topdown_grasps:
+        cfg = dataclasses.replace(cfg, topdown_grasp_config=None)
     t0 = time.perf_counter()
     robot = load_yumi()
     plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
@@ -548,6 +551,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "axis (PlanConfig.with_square_grasps; the spread set keeps RSRD's rule)")  # fmt: skip
     pl.add_argument("--square-cone", type=float, default=15.0, metavar="DEG",
                     help="the friction cone of --square-grasps (degrees; 45 = RSRD's cone with patch normals)")
+    pl.add_argument("--no-topdown-grasps", action="store_true",
+                    help="no top-down grasps across the parts' footprints (PlanConfig.topdown_grasp_config; on by default, "
+                         "tried only when no mesh grasp survives)")  # fmt: skip
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,

@@ -508,7 +508,8 @@ def test_bimanual_plan_couples_both_arms(robot):
 def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     """`rsrd-jax plan MODEL TRAJ --object-pose ...` on a one-part cube model and a written
     trajectory: grasps are sampled on the model's Gaussians (their ±1σ extents), the plan tracks
-    T_robot_obj · T_obj_part · T_part_grasp at every keyframe, and --rerun writes plan.rrd."""
+    T_robot_obj · T_obj_part · T_part_grasp at every keyframe, --rerun writes plan.rrd, and
+    --no-topdown-grasps is recorded in plan.json's config (the default keeps the top-down set)."""
     from rsrd_jax.cli import main
     from rsrd_jax.features import fit_pca
     from rsrd_jax.io import PartTrajectory, save_trajectory
@@ -537,9 +538,13 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     out = tmp_path / "plan"
     rc = main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
                "--out", str(out), "--keyframes", "4", "--chunk", "8", "--max-iterations", "40", "--hands", "none",
-               "--grasps", "2", "--approach-steps", "4", "--rerun", "--extent-meshes", "--grasp-keyframe-weight", "3"])  # fmt: skip
+               "--grasps", "2", "--approach-steps", "4", "--rerun", "--extent-meshes", "--grasp-keyframe-weight", "3",
+               "--no-topdown-grasps"])  # fmt: skip
     plan = load_plan(out)
     assert rc == 0 and plan.success, plan.info
+    assert plan.info["config"]["topdown_grasp_config"] is None
+    assert plan_config_from_dict(plan.info["config"]).topdown_grasp_config is None
+    assert plan_config_from_dict({}).topdown_grasp_config is not None
     k = int(plan.part[plan.active][0])
     assert k == 0
     a = int(np.nonzero(plan.active)[0][0])
