@@ -165,7 +165,7 @@ class PlanConfig(eqx.Module):
     ``approach_candidates`` that get an approach."""
     max_candidates: int = 480
     """Grasp candidates solved per part and arm: the seated ones (see ``grasp_depths``), best
-    grasp score first (RSRD solves 480)."""
+    grasp score first (RSRD solves 480), the top-down set after all others."""
     approach_distance: float = 0.06
     """Pre-grasp offset along −approach (gripper z) from the first grasp pose (m)."""
     approach_clearance: float | tuple[float | None, ...] | None = (None, 0.01)
@@ -891,7 +891,9 @@ def _plan_robot(
         # only grasps that are valid and seat without collision are solved (the rest keep NaN
         # joints / infinite errors and are counted at their own stage)
         sel = np.nonzero(valid & seated)[0]
-        sel = np.sort(sel[np.argsort(-np.asarray(g.score)[sel], kind="stable")][: config.max_candidates])
+        # best score first, the top-down set after every mesh grasp (so it never displaces one)
+        late = sel >= topdown_row.get(k, np.iinfo(np.int64).max)
+        sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], late))][: config.max_candidates])
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
                    pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
