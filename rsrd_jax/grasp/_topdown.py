@@ -6,8 +6,8 @@ decimated alpha-shape mesh of Gaussian centres. On a part lying flat (a scissor 
 temple, a panel's tab) almost all of that area faces up or down, so almost every grasp pinches
 across the part's thickness, and its rolls approach from the side, through the table. The walls
 a jaw coming from above would pinch are a few millimetres tall, a handful of faces after
-decimation or none at all (on the pipeline-size studio scissors 1 of 128 base grasps has a
-level axis; on the led_light panel's tab none). Here the part's points are projected along the
+decimation or none at all (on the studio scissors' ground-truth geometry 1 of 128 base grasps
+can be approached from above; the tracked led_light model's tab has no face facing sideways). Here the part's points are projected along the
 table normal into a footprint image, and pairs of its outline points whose outward normals
 oppose each other across the part are the contacts: the grasp axis is level, the approach is
 straight down (plus a few tilts about the axis), and the grasp centre sits at the middle of the

@@ -231,9 +231,10 @@ class PlanConfig(eqx.Module):
     approached from above (:func:`rsrd_jax.grasp.sample_topdown_grasps`, the table's normal taken
     in the part's frame at the first keyframe), merged after the spread set and used only when no
     grasp of the first three sets survives (tier 2). The mesh sampler's grasps on a part lying
-    flat pinch across its thickness with a side approach through the table (the tracked studio
-    scissors: 1 of 128 base grasps has a level axis, none seats; with these its blade is held
-    from above at its ring and the demo succeeds in simulation); None = off."""
+    flat pinch across its thickness with a side approach through the table: on the tracked
+    studio scissors none seats at any depth; with these all 10 table orientations of the robot
+    trials plan and 6 succeed in simulation, led_light 9 and 3
+    (``experiments/results/robot_trials_s41.md``); None = off."""
     hand_grasp_radius: float = 0.02
     """Radius (m) around each hand's point within which ``hand_grasp_config`` samples."""
     mesh_config: MeshConfig = MeshConfig()
