@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 from jaxtyping import Float
 
@@ -79,19 +80,6 @@ def _basis(down: np.ndarray) -> np.ndarray:
 def _disc(r: int) -> np.ndarray:
     y, x = np.mgrid[-r : r + 1, -r : r + 1]
     return x * x + y * y <= r * r
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _wxyz(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3)."""
-    import scipy.spatial.transform as st
-
-    q = st.Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()  # x y z w
-    return np.concatenate([q[:, 3:], q[:, :3]], axis=-1).reshape(*R.shape[:-2], 4)
 
 
 def sample_topdown_grasps(
@@ -246,14 +234,15 @@ def sample_topdown_grasps(
         flip = np.diag([-1.0, -1.0, 1.0])  # axis sign: π about z
         for s, Rs in enumerate((R0, R0 @ flip)):
             for r, a in enumerate(tilts):
-                R[:g, s, r] = Rs @ _rot_x(a)
+                R[:g, s, r] = Rs @ np.asarray(jaxlie.SO3.from_x_radians(float(a)).as_matrix(), np.float64)
         centre[:g] = contacts[:g].mean(1)[:, None, None]
     n = n_g * 2 * len(tilts)
     rep = lambda v: np.broadcast_to(v[:, None, None], (n_g, 2, len(tilts))).reshape(n)  # noqa: E731
     result = (GraspResult.success if g else GraspResult.no_opposite_surface if n_hit == 0
               else GraspResult.width_out_of_range if n_width == 0 else GraspResult.outside_friction_cone)  # fmt: skip
     return PartGrasps(
-        T_part_grasp=jnp.asarray(np.concatenate([_wxyz(R), centre], -1).reshape(n, 7), jnp.float32),
+        T_part_grasp=jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R.reshape(n, 3, 3), jnp.float32)),
+                                                           jnp.asarray(centre.reshape(n, 3), jnp.float32)).wxyz_xyz,
         width=jnp.asarray(rep(widths), jnp.float32), score=jnp.asarray(rep(scores), jnp.float32),
         valid=jnp.asarray(rep(base_valid)), base_index=jnp.asarray(rep(np.arange(n_g)), jnp.int32),
         contacts=jnp.asarray(contacts, jnp.float32), base_valid=jnp.asarray(base_valid), result=result,
