@@ -283,6 +283,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
             return 2
         part_points, T_obj_part, hands = inp.part_points, inp.T_obj_part, inp.hands
         T_robot_obj = inp.T_robot_obj if a.object_pose is None else _parse_object_pose(a.object_pose)
+        free = inp.free_parts
     else:
         from .io import load_trajectory
         from .parts import load_object_model
@@ -311,8 +312,9 @@ def cmd_plan(a: argparse.Namespace) -> int:
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         T_obj_part = traj.T_obj_part
         T_robot_obj = _parse_object_pose(a.object_pose)
-        from .pipeline import anchored_hand_parts, anchored_hand_points
+        from .pipeline import anchored_hand_parts, anchored_hand_points, free_parts
 
+        free = free_parts(traj)
         hand_parts = anchored_hand_parts(traj)
         hand_points = anchored_hand_points(traj) if a.hand_grasps else None
     if a.hands == "none":
@@ -333,8 +335,14 @@ def cmd_plan(a: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, topdown_grasp_config=None)
     t0 = time.perf_counter()
     robot = load_yumi()
+    if a.free_parts is not None:
+        free = a.free_parts or None
+        bad = [k for k in a.free_parts if not 0 <= k < len(part_points)]
+        if bad:
+            print(f"error: --free-parts {bad}: expected part indices 0..{len(part_points) - 1}", file=sys.stderr)
+            return 2
     plan = plan_robot(robot, part_points, T_obj_part, T_robot_obj, hands=hands, config=cfg, mesh_points=mesh_points,
-                      hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
+                      hand_parts=hand_parts, hand_points=hand_points, free_parts=free)  # fmt: skip
     save_plan(plan, out)
     print(f"plan: {plan.result_name} ({plan.message}) in {time.perf_counter() - t0:.1f} s -> {out / 'plan.npz'}")
     if a.rerun and plan.success:
@@ -554,6 +562,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--no-topdown-grasps", action="store_true",
                     help="no top-down grasps across the parts' footprints (PlanConfig.topdown_grasp_config; on by default, "
                          "tried only when no mesh grasp survives)")  # fmt: skip
+    pl.add_argument("--free-parts", type=int, nargs="*", default=None, metavar="K",
+                    help="parts no joint holds: square pinches (PlanConfig.free_cone_deg) that need not turn the part "
+                         "about the jaw's axis (free_twist_deg); default every part of a trajectory tracked as separable "
+                         "(--studio-gt: the object's separable flag); the option with no part turns it off")  # fmt: skip
     pl.add_argument("--hand-tolerance", type=float, default=0.0,
                     help="allowed penetration of the gripper (palm, finger pads) into parts (m; 0 = strict)")  # fmt: skip
     pl.add_argument("--collision-margin", type=float, default=0.0,

@@ -222,6 +222,12 @@ def anchored_hand_points(traj) -> list[tuple[int, np.ndarray]]:
             for a in traj.meta.get("hand_anchors", []) if a.get("part") is not None]  # fmt: skip
 
 
+def free_parts(traj) -> list[int] | None:
+    """The parts no joint holds, for the planner: every part of an object tracked as separable
+    (``trajectory.json``'s ``separable``), else None."""
+    return list(range(traj.num_parts)) if traj.meta.get("separable") else None
+
+
 def studio_separable(studio_dir: Path) -> bool:
     """The studio object's ``separable`` flag (``object.json``): its parts come apart (usb_plug).
     A scan does not record it, so the pipeline passes it to tracking."""
@@ -369,8 +375,8 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         hand_parts = anchored_hand_parts(traj)
         hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
         plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
-                          config=_plan_config(cfg),
-                          mesh_points=mesh_points, hand_parts=hand_parts, hand_points=hand_points)  # fmt: skip
+                          config=_plan_config(cfg), mesh_points=mesh_points, hand_parts=hand_parts,
+                          hand_points=hand_points, free_parts=free_parts(traj))  # fmt: skip
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
             from .plan import log_plan

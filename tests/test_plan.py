@@ -564,6 +564,16 @@ def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     ), tmp_path / "traj2")  # fmt: skip
     assert main(["plan", str(tmp_path / "model"), str(tmp_path / "traj2"), "--object-pose", *map(str, T_ROBOT_OBJ),
                  "--out", str(tmp_path / "plan2")]) == 2  # fmt: skip
+    # free parts: every part of a trajectory tracked as separable; a part index out of range is refused
+    from rsrd_jax.io import load_trajectory
+    from rsrd_jax.pipeline import free_parts
+
+    assert free_parts(load_trajectory(tmp_path / "traj")) is None and plan.info["free_parts"] == []
+    sep = dataclasses.replace(load_trajectory(tmp_path / "traj2"), meta={"separable": True})
+    assert free_parts(sep) == [0, 1]
+    assert main(["plan", str(tmp_path / "model"), str(tmp_path / "traj"), "--object-pose", *map(str, T_ROBOT_OBJ),
+                 "--out", str(tmp_path / "plan3"), "--free-parts", "1"]) == 2  # fmt: skip
+    assert not (tmp_path / "plan3" / "plan.npz").exists()
 
 
 def test_cli_plan_scan_surface_needs_a_scan_with_depth(tmp_path, capsys):
@@ -945,3 +955,127 @@ def test_bimanual_pairs_take_one_candidate_per_base_grasp_first():
     assert _top_per_base(ids, base, 6, 1).tolist() == [1, 3, 6, 5, 0, 2]
     assert _top_per_base(ids, base, 5, 2).tolist() == [1, 0, 3, 4, 6]
     assert _top_per_base(ids, base, 20, 1000).tolist() == ids.tolist()
+
+
+def _rolling(T=12, deg=-15.0):
+    """`_trajectory`'s slide and lift while the part turns ``deg`` about its own x axis (a plug
+    pulled out and rolled, studio usb_plug)."""
+    out = []
+    for si in np.linspace(0, 1, T):
+        R = jaxlie.SO3.from_x_radians(np.deg2rad(deg) * si)
+        out.append(jaxlie.SE3.from_rotation_and_translation(R, jnp.asarray([0.06 * si, 0.0, 0.12 + 0.03 * si])).wxyz_xyz)
+    return np.asarray(out)[:, None]
+
+
+def test_grasp_twist_is_the_turn_about_the_closing_axis():
+    """`_part_turns` / `_grasp_twist` against scipy: a part turning by up to 30° about a random
+    axis, random grasp frames: the largest |rotation vector · closing axis| over the poses."""
+    from rsrd_jax.plan._search import _grasp_twist, _part_turns
+
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    R0 = Rotation.random(random_state=4)
+    angles = np.deg2rad([0.0, 10.0, 30.0, 20.0])
+    Rs = [R0 * Rotation.from_rotvec(a * u) for a in angles]  # turns in the part's own frame
+    poses = np.stack([np.r_[np.roll(R.as_quat(), 1), rng.normal(size=3)] for R in Rs])
+    turns = _part_turns(poses)
+    np.testing.assert_allclose(turns, angles[:, None] * u, atol=1e-5)
+    G = Rotation.random(5, random_state=5)
+    Tg = np.concatenate([np.roll(G.as_quat(), 1, axis=1), rng.normal(size=(5, 3))], 1)
+    want = np.deg2rad(30.0) * np.abs(G.as_matrix()[:, :, 0] @ u)
+    np.testing.assert_allclose(_grasp_twist(turns, Tg), want, atol=1e-5)
+
+
+def test_grasps_that_must_twist_a_free_part_rank_after_the_others(robot):
+    """A free part (no joint holds it) turning 15° about its x axis: among top-down pinches rolled
+    about the approach axis (closing axes at 0, 22.5, ..., 157.5° from x), the plan takes one
+    that turns the part by at most `free_twist_deg` (10°) about its own axis; with only twisting
+    grasps it still plans, and says so. (Turning the other way, every candidate here collides.)"""
+    from rsrd_jax.plan._search import _grasp_twist, _part_turns
+
+    traj = _rolling()
+    g = _grasps(8, 0)
+    cfg = dataclasses.replace(CFG, max_candidates=8)
+    twist = np.rad2deg(_grasp_twist(_part_turns(traj[:, 0]), np.asarray(g.T_part_grasp)))
+    np.testing.assert_allclose(twist, 15.0 * np.abs(np.cos(np.linspace(0, np.pi, 8, endpoint=False))), atol=1e-3)
+    plan = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=cfg, free_parts=[0])
+    assert plan.success, (plan.message, plan.info)
+    assert plan.grasp_index[0] in (3, 4, 5) and twist[plan.grasp_index[0]] <= 10.0
+    assert plan.info["chosen"]["twisting_grasp"] is False and plan.info["free_parts"] == [0]
+    # the closing axis of the chosen grasp, by the grasp's own frame (scipy): nearly across x
+    ax = Rotation.from_quat(np.roll(plan.T_part_grasp[0, :4], -1)).as_matrix()[:, 0]
+    assert abs(ax[0]) <= np.cos(np.deg2rad(48.0))  # 10° of 15° about x: 48° or more from x
+    only = eqx_rows(g, [0, 1, 7])  # closing axes 0, 22.5 and 157.5 deg from x: all twist > 10 deg
+    plan2 = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: only}, config=cfg, free_parts=[0])
+    assert plan2.success and plan2.info["chosen"]["twisting_grasp"] is True
+    with pytest.raises(ValueError, match="free_parts"):
+        plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=cfg, free_parts=[1])
+
+
+def eqx_rows(g: PartGrasps, rows) -> PartGrasps:
+    """The grasps of ``rows`` (base grasps renumbered)."""
+    r = np.asarray(rows)
+    return PartGrasps(
+        T_part_grasp=g.T_part_grasp[r], width=g.width[r], score=g.score[r], valid=g.valid[r],
+        base_index=jnp.arange(len(r)), contacts=g.contacts[r], base_valid=g.base_valid[r], result=g.result,
+        num_hit=g.num_hit, num_width_ok=g.num_width_ok, num_antipodal=g.num_antipodal,
+    )  # fmt: skip
+
+
+def test_twisting_grasps_come_last_within_their_tier():
+    """`_combine` orders survivors by (tier, twist, cost): a grasp that must twist a free part
+    comes after the others of its tier, never before a better tier."""
+    from rsrd_jax.plan._search import _Batch, _combine
+
+    n = 6
+    b = _Batch(q=np.zeros((n, 3, 16)), cost=np.array([5.0, 1.0, 3.0, 0.5, 2.0, 4.0]), lm_result=np.zeros(n, int),
+               iterations=np.zeros(n, int), pos=np.zeros((n, 2)), rot=np.zeros((n, 2)), viol=np.zeros(n),
+               mins=np.zeros((n, 3)), pos0=np.zeros(n), rot0=np.zeros(n))  # fmt: skip
+    alive = np.ones(n, bool)
+    per_arm = [(0, 1, b, alive, np.zeros((n, 3, 2, 7)), None)]
+    args = (None, None, None, None, PlanConfig(), False, 0.025, {}, {})
+    twisty = lambda k, g, i: np.isin(np.asarray(i), [1, 3])  # noqa: E731
+    out = _combine(per_arm, *args, {1: (4,)}, twisty)
+    assert [c["arms"][0][2] for c in out] == [2, 0, 3, 1, 4, 5]
+    assert [c["twist"] for c in out] == [False, False, True, True, False, False]
+    assert [c["tier"] for c in out] == [0, 0, 0, 0, 1, 1]
+    plain = _combine(per_arm, *args, {1: (4,)})
+    assert [c["arms"][0][2] for c in plain] == [3, 1, 2, 0, 4, 5] and not any(c["twist"] for c in plain)
+
+
+def test_a_free_parts_pinches_are_sampled_within_the_free_cone(robot, monkeypatch):
+    """The antipodal samplings of a free part take `free_cone_deg` (15°) as their friction cone
+    (the smaller of it and their own); a part not declared free keeps 45°. With rays tilted off
+    the normals (Dex-Net's jitter), the free cube's grasp axes lie within 15° of a face normal
+    and closer to them than the other's."""
+    import rsrd_jax.plan._search as S
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def record(mesh, key, config, **kw):
+        g = sample(mesh, key, config, **kw)
+        seen.append((float(config.friction_angle_deg), g))
+        return g
+
+    def stop(*a, **kw):
+        raise Stop  # the top-down set comes after every antipodal one: enough
+
+    sample = S.sample_antipodal_grasps
+    monkeypatch.setattr(S, "sample_antipodal_grasps", record)
+    monkeypatch.setattr(S, "sample_topdown_grasps", stop)
+    jit = GraspConfig(num_grasps=16, axis_jitter=0.5)  # rays tilted up to 26.6° off the normal
+    cfg = dataclasses.replace(CFG, grasp_config=jit, spread_grasp_config=jit, hand_grasp_config=None)
+    for free in ([0], None):
+        with pytest.raises(Stop):
+            plan_robot(robot, [_cube(n=12)], _rolling(), T_ROBOT_OBJ, config=cfg, free_parts=free)
+    assert [c for c, _ in seen] == [15.0, 15.0, 45.0, 45.0]  # (best-scored, spread) free, then not
+    off = []
+    for _, g in seen:
+        R = Rotation.from_quat(np.roll(np.asarray(g.T_part_grasp)[np.asarray(g.valid)][:, :4], -1, axis=1)).as_matrix()
+        off.append(np.rad2deg(np.arccos(np.clip(np.abs(R[:, :, 0]).max(axis=1), -1, 1))).max())  # from a face normal
+    # (the same seed and config otherwise: without the narrower cone both would be the same set)
+    assert max(off[:2]) <= 15.0 + 0.5 and max(off[2:]) > max(off[:2]) + 2.0, off

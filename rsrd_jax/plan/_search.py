@@ -237,6 +237,24 @@ class PlanConfig(eqx.Module):
     (``experiments/results/robot_trials_s41.md``); None = off."""
     hand_grasp_radius: float = 0.02
     """Radius (m) around each hand's point within which ``hand_grasp_config`` samples."""
+    free_cone_deg: float | None = 15.0
+    """The antipodal samplings of a free part (``plan_robot(free_parts=)``) accept only contacts
+    whose normals lie within this angle of the grasp axis (``GraspConfig.friction_angle_deg``,
+    the smaller of the two): the closing jaw turns a free part until its faces lie flat on the
+    pads, which moves the whole part, not only within the pinch. Studio usb_plug on ground truth:
+    a pinch 24° off the plug's faces (45° cone) rolled and yawed the plug by 18° and 17° as it
+    closed (it ended 25° off the demo); with 15° the plug turned by 6–8° and the trial succeeded.
+    None = the sets' own cones."""
+    free_twist_deg: float | None = 10.0
+    """A grasp on a free part (``plan_robot(free_parts=)``: no joint holds it, so the grip alone
+    turns it) whose trajectory turns the part by more than this about the grasp's closing axis
+    ranks after the other grasps of its tier: the pads' friction alone must carry that turn
+    (torsion), and two small contact patches let the part pivot between them. A hinged part's
+    turn is carried by the hinge and the pinch point's path along the arc, so the rule does not
+    apply to it. Studio usb_plug (the plug leaves the brick with a 23° roll about its width): the
+    best-cost ground-truth grasp pinched across that width, the plug stayed level in simulation
+    and ended 20.7° off the demo; ranking it late, a pinch across the plug's thickness carried the
+    roll. None = off."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -653,6 +671,7 @@ def plan_robot(
     mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
     hand_parts: tuple[int, int] | None = None,
     hand_points: Sequence[tuple[int, Float[np.ndarray, "3"]]] | None = None,
+    free_parts: Sequence[int] | None = None,
 ) -> RobotPlan:
     """Plan a YuMi joint trajectory that makes grasped parts follow a part trajectory.
 
@@ -701,6 +720,10 @@ def plan_robot(
         hand_points: optional (part, point) pairs: where the demonstrator's hands held which
             part (part frame, m; e.g. the tracker's hand anchors). Grasps are also sampled near
             them (``config.hand_grasp_config``) when grasps are not given.
+        free_parts: optional parts that no joint holds (the parts of a separable object):
+            their pinches must close square on their faces (``config.free_cone_deg``), and a
+            grasp that must turn such a part about its own closing axis ranks late
+            (``config.free_twist_deg``).
 
     Returns:
         :class:`RobotPlan`; infeasible requests return a plan whose ``result`` says why. Its
@@ -716,9 +739,13 @@ def plan_robot(
         bad = [(k, x) for k, x in hand_points if not 0 <= k < len(part_points) or x.shape != (3,) or not np.all(np.isfinite(x))]
         if bad:
             raise ValueError(f"hand_points: expected (part in 0..{len(part_points) - 1}, finite point (3,)) pairs, got {bad}")
+    if free_parts is not None:
+        free_parts = tuple(int(k) for k in free_parts)
+        if any(not 0 <= k < len(part_points) for k in free_parts):
+            raise ValueError(f"free_parts {free_parts} out of range for {len(part_points)} parts")
     args = (robot, part_points, T_obj_part, T_robot_obj, hands, grasps)
     if config.bimanual != "auto":
-        plan = _plan_robot(*args, config, mesh_points, hand_points)
+        plan = _plan_robot(*args, config, mesh_points, hand_points, free_parts)
         plan.info["config"] = dataclasses.asdict(config)
         return plan
     why = "parts given" if config.parts is not None else "no hands" if hands is None else "one part"
@@ -740,10 +767,10 @@ def plan_robot(
         motion = np.asarray(rk.relative_motion, np.float64)
         decided, why = _two_hands(rk, motion >= config.min_motion_fraction * motion.max(), config.bimanual_contact)
     plan = _plan_robot(*args, dataclasses.replace(pair_config if decided else config, bimanual=decided), mesh_points,
-                       hand_points)
+                       hand_points, free_parts)
     decision = {"mode": "auto", "bimanual": decided, "reason": why}
     if decided and not plan.success:  # a single arm may still reproduce part of the demo
-        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points, hand_points)
+        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points, hand_points, free_parts)
         decision.update(fallback="single-arm", bimanual_result=plan.result_name, bimanual_message=plan.message,
                         bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
         plan = single
@@ -762,6 +789,7 @@ def _plan_robot(
     config: PlanConfig = PlanConfig(),
     mesh_points: Sequence[Float[np.ndarray, "_m 3"]] | None = None,
     hand_points: Sequence[tuple[int, np.ndarray]] | None = None,
+    free_parts: Sequence[int] | None = None,
 ) -> RobotPlan:
     """The body of :func:`plan_robot` (``config.bimanual`` True or False)."""
     import time
@@ -798,7 +826,8 @@ def _plan_robot(
     home = np.asarray(HOME_Q, np.float32)
     home_tcp = np.asarray(tcp_poses(robot_lite, jnp.asarray(home)))  # (2, 7)
     open_grip = float(robot.upper[14])
-    info: dict = {"num_frames": nT, "num_parts": len(part_points), "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES}}
+    info: dict = {"num_frames": nT, "num_parts": len(part_points), "keyframes": K, "attempts": [], "rejections": {s: 0 for s in STAGES},
+                  "free_parts": [int(k) for k in (free_parts or ())]}  # fmt: skip
 
     # Ranking
     if config.parts is not None:
@@ -835,17 +864,20 @@ def _plan_robot(
         if k not in grasp_cache:
             mesh = build_part_mesh(np.asarray((part_points if mesh_points is None else mesh_points)[k]), config.mesh_config)
             kk = jax.random.fold_in(key, k)
-            g = sample_antipodal_grasps(mesh, kk, config.grasp_config)
+            cone = config.free_cone_deg if k in (free_parts or ()) else None
+            gc = lambda c: c if c is None or cone is None else dataclasses.replace(  # noqa: E731
+                c, friction_angle_deg=min(float(c.friction_angle_deg), float(cone)))
+            g = sample_antipodal_grasps(mesh, kk, gc(config.grasp_config))
             hand_row[k] = int(g.T_part_grasp.shape[0])
             if config.hand_grasp_config is not None:
                 for j, (kh, x) in enumerate(hand_points or []):
                     if kh == k:
-                        near = sample_antipodal_grasps(mesh, jax.random.fold_in(kk, 1000 + j), config.hand_grasp_config,
+                        near = sample_antipodal_grasps(mesh, jax.random.fold_in(kk, 1000 + j), gc(config.hand_grasp_config),
                                                        near=(x, config.hand_grasp_radius))  # fmt: skip
                         g = merge_grasps(g, near)
             spread_row[k] = int(g.T_part_grasp.shape[0])
             if config.spread_grasp_config is not None:
-                g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, config.spread_grasp_config))
+                g = merge_grasps(g, sample_antipodal_grasps(mesh, kk, gc(config.spread_grasp_config)))
             topdown_row[k] = int(g.T_part_grasp.shape[0])
             if config.topdown_grasp_config is not None:
                 R0 = np.asarray(_se3(T_robot_part[0, k]).rotation().as_matrix(), np.float64)
@@ -854,6 +886,16 @@ def _plan_robot(
                 g = merge_grasps(g, sample_topdown_grasps(pk, down, config.seed * 1009 + k, config.topdown_grasp_config))
             grasp_cache[k] = g
         return grasp_cache[k]
+
+    # how far each free part turns from the first keyframe, in its own frame (K, 3 rotation vectors)
+    turns = {k: _part_turns(T_obj_part[idx, k]) for k in (free_parts or ())} if config.free_twist_deg is not None else {}
+
+    def twisting(k: int, g: PartGrasps, i) -> np.ndarray:
+        """Whether grasps ``i`` of part k must turn it about their closing axis (``free_twist_deg``)."""
+        i = np.asarray(i)
+        if k not in turns:
+            return np.zeros(i.shape, bool)
+        return _grasp_twist(turns[k], np.asarray(g.T_part_grasp)[i]) > np.deg2rad(config.free_twist_deg)
 
     hand = hand_geometry(robot_lite, coll.proxy)
     seat_cache: dict[int, tuple[PartGrasps, np.ndarray, np.ndarray]] = {}
@@ -894,7 +936,7 @@ def _plan_robot(
         sel = np.nonzero(valid & seated)[0]
         # best score first, the top-down set after every mesh grasp (so it never displaces one)
         late = sel >= topdown_row.get(k, np.iinfo(np.int64).max)
-        sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], late))][: config.max_candidates])
+        sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], twisting(k, g, sel), late))][: config.max_candidates])
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
                    pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
@@ -949,7 +991,7 @@ def _plan_robot(
                 last_stage = _furthest(last_stage, stage)
                 continue
             cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info,
-                            {k: (spread_row[k], topdown_row[k]) for k in spread_row})
+                            {k: (spread_row[k], topdown_row[k]) for k in spread_row}, twisting)
             if cand is None:
                 last_stage = _furthest(last_stage, att.get("failed_stage", "collision"))
                 continue
@@ -958,7 +1000,7 @@ def _plan_robot(
             if plan is None:
                 last_stage = _furthest(last_stage, "approach")
                 continue
-            if best is None or (plan["tier"], plan["cost"]) < (best["tier"], best["cost"]):
+            if best is None or (plan["tier"], plan["twist"], plan["cost"]) < (best["tier"], best["twist"], best["cost"]):
                 best = plan
         if best is not None:
             break
@@ -982,6 +1024,7 @@ def _plan_robot(
     info["chosen"]["hand_grasp"] = [bool(k >= 0 and hand_row.get(int(k), np.inf) <= i < spread_row.get(int(k), -1))
                                     for k, i in zip(best["part"], best["grasp_index_arr"])]  # fmt: skip
     info["chosen"]["topdown_grasp"] = best["tier"] == 2
+    info["chosen"]["twisting_grasp"] = bool(best["twist"])
     info["hand_points_mm"] = [[int(k), [round(1e3 * float(v), 2) for v in x]] for k, x in (hand_points or [])]
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
                                      for k, i in zip(best["part"], best["grasp_index_arr"])]
@@ -1032,6 +1075,20 @@ def _top_per_base(ids: np.ndarray, base_index: np.ndarray, k: int, per_base: int
     return np.asarray((first + rest)[:k], int)
 
 
+def _part_turns(T_obj_part_k: np.ndarray) -> np.ndarray:
+    """(K, 3) rotation vectors of a part's turn from its first pose to each pose of ``(K, 7)``
+    poses, in the part's own frame (``log(R_0ᵀ R_t)``)."""
+    R = jaxlie.SE3(jnp.asarray(T_obj_part_k, jnp.float32)).rotation()
+    return np.asarray((jaxlie.SO3(jnp.broadcast_to(R.wxyz[0], R.wxyz.shape)).inverse() @ R).log(), np.float64)
+
+
+def _grasp_twist(turns: np.ndarray, T_part_grasp: np.ndarray) -> np.ndarray:
+    """(n,) largest turn (rad) about each grasp's closing axis (its x axis, part frame) over the
+    turns ``(K, 3)`` of :func:`_part_turns`."""
+    axes = np.asarray(jaxlie.SO3(jnp.asarray(np.asarray(T_part_grasp)[..., :4], jnp.float32)).as_matrix(), np.float64)[..., :, 0]
+    return np.abs(axes.reshape(-1, 3) @ turns.T).max(axis=1, initial=0.0)
+
+
 def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):
     """Tier of row(s) ``i`` of part ``k``'s grasps: how many of its tier start rows they reach."""
     i = np.asarray(i)
@@ -1039,28 +1096,31 @@ def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):
 
 
 def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info,
-             tier_rows: dict[int, tuple[int, ...]]):
-    """Single arm: survivors ordered by (tier, cost). Bimanual: top-k × top-k joint solves.
+             tier_rows: dict[int, tuple[int, ...]], twisting=None):
+    """Single arm: survivors ordered by (tier, twist, cost). Bimanual: top-k × top-k joint solves.
     Tier t = the number of ``tier_rows[k]`` (first rows of the spread set, then of the top-down
     set) at or before the grasp's row: a spread grasp is used only after every best-scored grasp
-    (tier 0), a top-down grasp only after both."""
+    (tier 0), a top-down grasp only after both. ``twisting(k, g, ids)``: grasps that must turn a
+    free part about their closing axis, ranked after the others of their tier."""
     tier = lambda k, i: _tier(tier_rows, k, i)  # noqa: E731
+    twist = twisting or (lambda k, g, i: np.zeros(np.shape(i), bool))
 
-    def order(k, b, alive):
+    def order(k, b, alive, g):
         ids = np.nonzero(alive)[0]
-        return ids[np.lexsort((b.cost[ids], tier(k, ids)))]
+        return ids[np.lexsort((b.cost[ids], twist(k, g, ids), tier(k, ids)))]
 
     if len(per_arm) == 1:
         a, k, b, alive, target, g = per_arm[0]
-        ids = order(k, b, alive)
+        ids = order(k, b, alive, g)
         active = np.zeros(2, bool)
         active[a] = True
+        tw = twist(k, g, ids)
         return [dict(q=b.q[i], cost=float(b.cost[i]), lm_result=int(b.lm_result[i]), iterations=int(b.iterations[i]),
                      target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i],
-                     tier=int(tier(k, i))) for i in ids]
+                     tier=int(tier(k, i)), twist=bool(w)) for i, w in zip(ids, tw)]
     (a0, k0, b0, al0, t0, g0), (a1, k1, b1, al1, t1, g1) = per_arm
-    i0 = _top_per_base(order(k0, b0, al0), np.asarray(g0.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
-    i1 = _top_per_base(order(k1, b1, al1), np.asarray(g1.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
+    i0 = _top_per_base(order(k0, b0, al0, g0), np.asarray(g0.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
+    i1 = _top_per_base(order(k1, b1, al1, g1), np.asarray(g1.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
     pairs = [(i, j) for i in i0 for j in i1]
     n = len(pairs)
     K = b0.q.shape[1]
@@ -1091,11 +1151,12 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
         return None
     ids = np.nonzero(alive)[0]
     pair_tier = np.array([max(int(tier(k0, pairs[m][0])), int(tier(k1, pairs[m][1]))) for m in ids], int)
-    ids, pair_tier = ids[np.lexsort((b.cost[ids], pair_tier))], np.sort(pair_tier)
+    pair_twist = np.array([bool(twist(k0, g0, [pairs[m][0]])[0] or twist(k1, g1, [pairs[m][1]])[0]) for m in ids], bool)
+    o = np.lexsort((b.cost[ids], pair_twist, pair_tier))
     return [dict(q=b.q[m], cost=float(b.cost[m]), lm_result=int(b.lm_result[m]), iterations=int(b.iterations[m]),
                  target=target[m], active=np.ones(2, bool),
                  arms=[(a0, k0, pairs[m][0], g0), (a1, k1, pairs[m][1], g1)], pos=b.pos[m], rot=b.rot[m],
-                 mins=b.mins[m], tier=int(t)) for m, t in zip(ids, pair_tier)]
+                 mins=b.mins[m], tier=int(t), twist=bool(w)) for m, t, w in zip(ids[o], pair_tier[o], pair_twist[o])]
 
 
 def _pads_to_grasped(robot_lite, coll, Qs: list, T_parts: np.ndarray, grasped: set, grip: np.ndarray,
@@ -1217,5 +1278,5 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         target=np.asarray(c["target"], float), active=c["active"], part=part, grasp_index_arr=gidx,
         grasp_index=[int(v) for v in gidx], parts=[int(v) for v in part], T_part_grasp=Tpg, width=width,
         pos=np.asarray(c["pos"], float), rot=np.asarray(c["rot"], float), mins=np.asarray(mins, float),
-        q_approach=q_app, approach_target=np.asarray(target[m], float), tier=c["tier"],
+        q_approach=q_app, approach_target=np.asarray(target[m], float), tier=c["tier"], twist=c["twist"],
     )

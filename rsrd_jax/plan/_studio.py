@@ -60,6 +60,9 @@ class StudioPlanInputs(eqx.Module):
     """(T, H, 2, 3) fingertip keypoints in the object frame (contact order), or None."""
     T_demo_scan: np.ndarray
     """(7,) scan world -> demo world."""
+    free_parts: tuple = eqx.field(static=True, default=None)
+    """Parts no joint holds (every part of a separable object, ``object.json``), or None: the
+    planner's ``free_parts``."""
 
 
 def read_robot_object_pose(path: str | Path) -> np.ndarray:
@@ -121,7 +124,12 @@ def studio_plan_inputs(studio_dir: str | Path, points_per_part: int | None = 200
             kw = np.asarray(z["keypoints_world"], float)
         Ti = np.linalg.inv(T_ds)
         hands = kw @ Ti[:3, :3].T + Ti[:3, 3]
+    free = None
+    if (d / "object.json").is_file():
+        with open(d / "object.json") as f:
+            free = tuple(range(P)) if json.load(f).get("separable") is True else None
     return StudioPlanInputs(
         part_points=local, part_centroids=cents, T_obj_part=_vec(T_op),
         T_robot_obj=read_robot_object_pose(d / "robot_view" / "gt.json"), hands=hands, T_demo_scan=_vec(T_ds),
+        free_parts=free,
     )
