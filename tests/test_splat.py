@@ -503,6 +503,15 @@ def test_chunk_carry_sums_each_tiles_earlier_or_later_chunks(rng, reverse):
     got = np.asarray(_chunk_carry(jnp.asarray(tot), layout, kc, reverse))
     np.testing.assert_allclose(got, want, atol=1e-5)
     assert np.all(got[n:] == 0.0)
+    # to the bit, the sum in the order the tracking's results were measured with: the nearest
+    # chunk first (float32 rounding fixes the order)
+    seq = np.zeros((nc, P), np.float32)
+    for c in range(n):
+        for d in range(1, kc):
+            o = c + d if reverse else c - d
+            if 0 <= o < n and tile[o] == tile[c]:
+                seq[c] = seq[c] + tot[o]
+    np.testing.assert_array_equal(got, seq)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -72,19 +72,31 @@ def pixel_basis(tile_size: int, dtype) -> jax.Array:
     return jnp.stack([jnp.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
 
 
+_CARRY_UNROLL = 8
+"""Steps of the chunk carry's loop per iteration (`lax.scan(unroll=)`)."""
+
+
 def _chunk_carry(tot: jax.Array, layout: ChunkLayout, max_chunks_per_tile: int, reverse: bool):
-    """Σ of `tot` over the earlier (or, reversed, later) chunks of the same tile, (NC, P)."""
+    """Σ of `tot` over the earlier (or, reversed, later) chunks of the same tile, (NC, P).
+
+    The chunk d places away is added for d = 1, 2, ... in turn (the summation order fixes the
+    rounding, which the tracking's outcome is sensitive to), in a `lax.scan` over d: unrolled in
+    Python the loop traced ~100 steps for a tile budget of 3328 entries (0.4–0.9 s of tracing
+    per compiled solve)."""
     nc = tot.shape[0]
-    carry = jnp.zeros_like(tot)
-    for d in range(1, max_chunks_per_tile):
-        if reverse:
-            src = jnp.concatenate([tot[d:], jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype)])[:nc]
-            ok = layout.index + d < layout.count
-        else:
-            src = jnp.concatenate([jnp.zeros((min(d, nc), *tot.shape[1:]), tot.dtype), tot[:-d]])[:nc]
-            ok = layout.index >= d
-        carry = carry + jnp.where(ok[:, None], src, 0.0)
-    return carry
+    kc = max_chunks_per_tile
+    if kc <= 1:
+        return jnp.zeros_like(tot)
+    pad = jnp.zeros((kc, *tot.shape[1:]), tot.dtype)
+    ext = jnp.concatenate([tot, pad]) if reverse else jnp.concatenate([pad, tot])
+
+    def add(carry, d):
+        src = jax.lax.dynamic_slice_in_dim(ext, d if reverse else kc - d, nc, 0)  # tot shifted by d, zeros beyond
+        ok = (layout.index + d < layout.count) if reverse else (layout.index >= d)
+        return carry + jnp.where(ok[:, None], src, 0.0), None
+
+    steps = jnp.arange(1, kc, dtype=jnp.int32)
+    return jax.lax.scan(add, jnp.zeros_like(tot), steps, unroll=min(_CARRY_UNROLL, kc - 1))[0]
 
 
 def _sigma(params: jax.Array, tile_size: int) -> jax.Array:

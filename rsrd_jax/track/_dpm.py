@@ -111,7 +111,7 @@ class TrackModel(eqx.Module):
         else:
             pairs_w = np.ones(len(pairs), np.float32)
         P = int(model.num_parts)
-        sub = jax.tree_util.tree_map(lambda x: x[keep], g)
+        sub = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)[keep]), g)  # host gathers: no compilation
         touch = touch_candidates(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w if touch else 0 * pairs_w)
         pivots = contact_pivots(np.asarray(sub.means), np.asarray(sub.part_ids), pairs, pairs_w, np.asarray(model.part_centroids), P)
         onehot = jax.nn.one_hot(sub.part_ids, P, dtype=sub.features.dtype)
