@@ -252,9 +252,10 @@ class PlanConfig(eqx.Module):
     (torsion), and two small contact patches let the part pivot between them. A hinged part's
     turn is carried by the hinge and the pinch point's path along the arc, so the rule does not
     apply to it. Studio usb_plug (the plug leaves the brick with a 23° roll about its width): the
-    best-cost ground-truth grasp pinched across that width, the plug stayed level in simulation
-    and ended 20.7° off the demo; ranking it late, a pinch across the plug's thickness carried the
-    roll. None = off."""
+    best-cost ground-truth grasp pinched across that width, the plug did not roll in simulation
+    and ended 20.7° off the demo; with this rule alone the next grasp, across the thickness but 24°
+    off the faces, turned the plug as it closed (25.3° off); with ``free_cone_deg`` too the pinch
+    across the thickness carried the roll and every stage passed. None = off."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
