@@ -1035,7 +1035,7 @@ def test_twisting_grasps_come_last_within_their_tier():
     alive = np.ones(n, bool)
     per_arm = [(0, 1, b, alive, np.zeros((n, 3, 2, 7)), None)]
     args = (None, None, None, None, PlanConfig(), False, 0.025, {}, {})
-    twisty = lambda k, g, i: np.isin(np.asarray(i), [1, 3])  # noqa: E731
+    twisty = lambda k, i: np.isin(np.asarray(i), [1, 3])  # noqa: E731
     out = _combine(per_arm, *args, {1: (4,)}, twisty)
     assert [c["arms"][0][2] for c in out] == [2, 0, 3, 1, 4, 5]
     assert [c["twist"] for c in out] == [False, False, True, True, False, False]

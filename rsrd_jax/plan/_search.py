@@ -891,12 +891,16 @@ def _plan_robot(
     # how far each free part turns from the first keyframe, in its own frame (K, 3 rotation vectors)
     turns = {k: _part_turns(T_obj_part[idx, k]) for k in (free_parts or ())} if config.free_twist_deg is not None else {}
 
-    def twisting(k: int, g: PartGrasps, i) -> np.ndarray:
+    twist_rows: dict[int, np.ndarray] = {}  # part -> per grasp row (seating moves grasps along z only)
+
+    def twisting(k: int, i) -> np.ndarray:
         """Whether grasps ``i`` of part k must turn it about their closing axis (``free_twist_deg``)."""
         i = np.asarray(i)
         if k not in turns:
             return np.zeros(i.shape, bool)
-        return _grasp_twist(turns[k], np.asarray(g.T_part_grasp)[i]) > np.deg2rad(config.free_twist_deg)
+        if k not in twist_rows:
+            twist_rows[k] = _grasp_twist(turns[k], np.asarray(get_grasps(k).T_part_grasp)) > np.deg2rad(config.free_twist_deg)
+        return twist_rows[k][i]
 
     hand = hand_geometry(robot_lite, coll.proxy)
     seat_cache: dict[int, tuple[PartGrasps, np.ndarray, np.ndarray]] = {}
@@ -937,7 +941,7 @@ def _plan_robot(
         sel = np.nonzero(valid & seated)[0]
         # best score first, the top-down set after every mesh grasp (so it never displaces one)
         late = sel >= topdown_row.get(k, np.iinfo(np.int64).max)
-        sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], twisting(k, g, sel), late))][: config.max_candidates])
+        sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], twisting(k, sel), late))][: config.max_candidates])
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
                    pos=np.full((n, 2), np.inf, np.float32), rot=np.full((n, 2), np.inf, np.float32),
@@ -1101,27 +1105,27 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
     """Single arm: survivors ordered by (tier, twist, cost). Bimanual: top-k × top-k joint solves.
     Tier t = the number of ``tier_rows[k]`` (first rows of the spread set, then of the top-down
     set) at or before the grasp's row: a spread grasp is used only after every best-scored grasp
-    (tier 0), a top-down grasp only after both. ``twisting(k, g, ids)``: grasps that must turn a
+    (tier 0), a top-down grasp only after both. ``twisting(k, rows)``: grasps that must turn a
     free part about their closing axis, ranked after the others of their tier."""
     tier = lambda k, i: _tier(tier_rows, k, i)  # noqa: E731
-    twist = twisting or (lambda k, g, i: np.zeros(np.shape(i), bool))
+    twist = twisting or (lambda k, i: np.zeros(np.shape(i), bool))
 
-    def order(k, b, alive, g):
+    def order(k, b, alive):
         ids = np.nonzero(alive)[0]
-        return ids[np.lexsort((b.cost[ids], twist(k, g, ids), tier(k, ids)))]
+        return ids[np.lexsort((b.cost[ids], twist(k, ids), tier(k, ids)))]
 
     if len(per_arm) == 1:
         a, k, b, alive, target, g = per_arm[0]
-        ids = order(k, b, alive, g)
+        ids = order(k, b, alive)
         active = np.zeros(2, bool)
         active[a] = True
-        tw = twist(k, g, ids)
+        tw = twist(k, ids)
         return [dict(q=b.q[i], cost=float(b.cost[i]), lm_result=int(b.lm_result[i]), iterations=int(b.iterations[i]),
                      target=target[i], active=active, arms=[(a, k, i, g)], pos=b.pos[i], rot=b.rot[i], mins=b.mins[i],
                      tier=int(tier(k, i)), twist=bool(w)) for i, w in zip(ids, tw)]
     (a0, k0, b0, al0, t0, g0), (a1, k1, b1, al1, t1, g1) = per_arm
-    i0 = _top_per_base(order(k0, b0, al0, g0), np.asarray(g0.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
-    i1 = _top_per_base(order(k1, b1, al1, g1), np.asarray(g1.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
+    i0 = _top_per_base(order(k0, b0, al0), np.asarray(g0.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
+    i1 = _top_per_base(order(k1, b1, al1), np.asarray(g1.base_index), cfg.top_k_per_arm, cfg.bimanual_per_base)
     pairs = [(i, j) for i in i0 for j in i1]
     n = len(pairs)
     K = b0.q.shape[1]
@@ -1151,8 +1155,9 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
         att["failed_stage"] = _exhausting_stage(counts)
         return None
     ids = np.nonzero(alive)[0]
-    pair_tier = np.array([max(int(tier(k0, pairs[m][0])), int(tier(k1, pairs[m][1]))) for m in ids], int)
-    pair_twist = np.array([bool(twist(k0, g0, [pairs[m][0]])[0] or twist(k1, g1, [pairs[m][1]])[0]) for m in ids], bool)
+    p0, p1 = (np.array([pairs[m][j] for m in ids], int) for j in (0, 1))
+    pair_tier = np.maximum(tier(k0, p0), tier(k1, p1))
+    pair_twist = twist(k0, p0) | twist(k1, p1)
     o = np.lexsort((b.cost[ids], pair_twist, pair_tier))
     return [dict(q=b.q[m], cost=float(b.cost[m]), lm_result=int(b.lm_result[m]), iterations=int(b.iterations[m]),
                  target=target[m], active=np.ones(2, bool),

@@ -60,7 +60,7 @@ class StudioPlanInputs(eqx.Module):
     """(T, H, 2, 3) fingertip keypoints in the object frame (contact order), or None."""
     T_demo_scan: np.ndarray
     """(7,) scan world -> demo world."""
-    free_parts: tuple = eqx.field(static=True, default=None)
+    free_parts: tuple[int, ...] | None = eqx.field(static=True, default=None)
     """Parts no joint holds (every part of a separable object, ``object.json``), or None: the
     planner's ``free_parts``."""
 
@@ -84,17 +84,19 @@ def studio_plan_inputs(studio_dir: str | Path, points_per_part: int | None = 200
     """Reads a studio object's scan/demo/robot-view ground truth as planning inputs.
 
     Args:
-        studio_dir: output of ``rsrd_jax.studio.make_object`` (needs scan, demo, robot_view).
+        studio_dir: output of ``rsrd_jax.studio.make_object`` (needs object.json, scan, demo, robot_view).
         points_per_part: subsample each part's surface points to at most this many (None: all).
         seed: subsampling seed.
     """
     from ..io import ArtefactError
 
     d = Path(studio_dir)
-    need = (d / "scan" / "gt" / "scan_gt.npz", d / "demo" / "gt" / "part_poses.npz", d / "robot_view" / "gt.json")
+    need = (d / "scan" / "gt" / "scan_gt.npz", d / "demo" / "gt" / "part_poses.npz", d / "robot_view" / "gt.json",
+            d / "object.json")
     missing = [str(p) for p in need if not p.is_file()]
     if missing:
-        raise ArtefactError(f"{d}: not a complete studio object directory (scan, demo and robot_view ground truth); "
+        raise ArtefactError(f"{d}: not a complete studio object directory (object.json, scan, demo and robot_view "
+                            f"ground truth); "
                             f"missing {', '.join(missing)} (make it with `rsrd-jax studio make NAME --out DIR`)")  # fmt: skip
     with np.load(d / "scan" / "gt" / "scan_gt.npz") as z:
         T_wr = _mat(z["T_world_part"])  # (P, 4, 4) rest, scan world
@@ -124,10 +126,9 @@ def studio_plan_inputs(studio_dir: str | Path, points_per_part: int | None = 200
             kw = np.asarray(z["keypoints_world"], float)
         Ti = np.linalg.inv(T_ds)
         hands = kw @ Ti[:3, :3].T + Ti[:3, 3]
-    free = None
-    if (d / "object.json").is_file():
-        with open(d / "object.json") as f:
-            free = tuple(range(P)) if json.load(f).get("separable") is True else None
+    from ..pipeline import studio_separable  # the one reader of the flag (tracking takes it too)
+
+    free = tuple(range(P)) if studio_separable(d) else None
     return StudioPlanInputs(
         part_points=local, part_centroids=cents, T_obj_part=_vec(T_op),
         T_robot_obj=read_robot_object_pose(d / "robot_view" / "gt.json"), hands=hands, T_demo_scan=_vec(T_ds),
