@@ -325,6 +325,44 @@ def test_release_keeps_opening_while_a_pad_is_on_the_part(tmp_path):
     assert more.success, more.reasons
 
 
+@pytest.mark.parametrize("name, yaw, part", [("red_box", None, 1), ("scissors", 102.83, 1)])
+def test_a_sided_release_leaves_the_object_where_the_motion_ended(tmp_path, name, yaw, part):
+    """Regression (session 43): two tracked robot-trial plans (`tests/data/{name}_release_plan`;
+    red_box at the default table yaw, scissors at 102.83°) end with a finger pad that has an
+    object surface on its outer side: red_box's lower pad lies between the lid it pinched and the
+    box, scissors' pad sits in the blade's ring hole next to the far wall. Opening both fingers
+    about the TCP pressed that pad into the object: red_box's box was dragged by the retreat
+    (tilted > 10°, the lid ended > 15° off the demo's final angle though the motion ended within
+    7.5°), the scissors' far wall was pushed (the blade turned > 8° more after the motion). A
+    sided release keeps that pad still and opens the other: the object stays where the motion
+    left it (MuJoCo's part poses: within 2° of the motion's end, red_box's box turned < 3° since)
+    and Exec passes."""
+    studio = tmp_path / name
+    make_object(name, studio, StudioConfig(seed=0, demo_size=(32, 24), robot_size=(32, 24), robot_object_yaw_deg=yaw,
+                                           parts=("demo", "robot_view")))  # fmt: skip
+    plan = load_plan(Path(__file__).parent / "data" / f"{name}_release_plan")
+    both = simulate_plan(plan, studio, SimConfig(release_sided=False), progress=False)
+    sided = simulate_plan(plan, studio, progress=False)
+    a = ("right", "left")[int(np.flatnonzero(plan.active)[0])]
+    for r in (both, sided):
+        assert r.stages["grasp"], r.reasons
+    end = lambda r: r.metrics["exec"]["end_of_motion_error_deg"][part]  # noqa: E731
+    fin = lambda r: r.metrics["exec"]["final_error_deg"][part]  # noqa: E731
+    assert end(both) == pytest.approx(end(sided), abs=1e-6)  # the same motion; only the release differs
+    assert both.stages["exec"] is False and fin(both) - end(both) > 8.0, both.metrics["exec"]
+    assert both.metrics["release"]["sided_openings"][a] == 0 and both.metrics["release"]["shift_mm"][a] == 0.0
+    assert sided.metrics["release"]["sided_openings"][a] >= 1 and abs(sided.metrics["release"]["shift_mm"][a]) >= 2.0
+    assert abs(fin(sided) - end(sided)) < 2.0, sided.metrics["exec"]
+
+    def root_turn(r) -> float:  # the root's turn (deg) from the motion's end to the end
+        R = [jaxlie.SO3(jnp.asarray(r.part_poses[i, 0, :4])) for i in (np.flatnonzero(r.phase == 4)[-1], -1)]
+        return float(np.rad2deg(np.linalg.norm(np.asarray((R[0].inverse() @ R[1]).log()))))
+
+    assert sided.success, sided.reasons
+    if name == "red_box":  # the box: dragged by the retreat, or left in place
+        assert root_turn(both) > 10.0 and root_turn(sided) < 3.0, (root_turn(both), root_turn(sided))
+
+
 def _planned_from_ground_truth(root, square: bool = False, config=None):
     """The planner's plan from a studio object's ground truth (true part surfaces, trajectory
     and table pose; a separable object's parts free, as the pipeline passes them) with the

@@ -121,6 +121,17 @@ class SimConfig(eqx.Module):
     """``release_step``: the distance (m) both pads must keep from the part before the retreat
     (with the pads just off the part, 1 mm, the retreat's servo lag brought one back onto the
     toy_drawer's knob, which it dragged 28 mm)."""
+    release_sided: bool = True
+    """On release each finger pad opens only into free space: a pad with an object surface on its
+    outer side (where it moves as the jaw opens) within its step plus ``release_gap`` moves only
+    up to that gap, the other finger opens by what it cannot, and the arm shifts along the jaw
+    axis by half the difference (the opening stops when neither can move). A check from the
+    fingers' proximity to the object, as pad sensors or the planner's object model would give it.
+    False opens both fingers about the TCP (sessions ≤ 42): on tracked robot-trial plans a
+    scissors pad in the ring's hole pushed the far wall as the jaw opened (the blade turned
+    4–10° more after the motion), and a red_box lower pad between the lid and the box pressed
+    the box down and dragged it on the retreat (box tilted 12–80°, lid 18–19° off the demo's
+    final angle where the motion ended 6–7° off)."""
     release_settle: float = 0.1
     """Settle time (s) after each further opening of ``release_step``."""
     retreat_distance: float = 0.08

@@ -249,6 +249,23 @@ class _Runner:
         return np.array([min(mujoco.mj_geomDistance(m, d, int(s.pad_geoms[a, f]), int(h), 0.05, None)
                              for h in s.part_geoms[self.part[a]]) for f in range(2)])  # fmt: skip
 
+    def pads_room(self, a: int | np.integer, reach: float) -> np.ndarray:
+        """(2,) free distance (m) of each finger pad of arm ``a`` on its outer side, where the pad
+        moves as the jaw opens: the distance to the nearest object surface lying outward of the
+        pad's centre (a pad in a ring's hole before the far wall, a lower pad between a lid and its
+        box), ``reach`` when none is nearer."""
+        m, d, s = self.m, self.d, self.s
+        x = d.site_xmat[s.tcp_sites[a]].reshape(3, 3)[:, 0]
+        fromto, out = np.zeros(6), np.full(2, float(reach))
+        for f in range(2):
+            g = int(s.pad_geoms[a, f])
+            away = np.sign((d.geom_xpos[g] - d.site_xpos[s.tcp_sites[a]]) @ x) * x
+            for h in np.concatenate(s.part_geoms):
+                dist = mujoco.mj_geomDistance(m, d, g, int(h), reach, fromto)
+                if dist < out[f] and (fromto[3:] - d.geom_xpos[g]) @ away > 0.0:
+                    out[f] = dist
+        return out
+
     def jaw_force(self, a: int | np.integer) -> float:
         """Net contact force (N) on arm ``a``'s fingers along its jaw axis (TCP x)."""
         d, f6, F = self.d, np.zeros(6), np.zeros(3)
@@ -499,29 +516,49 @@ def simulate_plan(
         T_end_motion = scene.part_poses()
         # release, retreat, settle
         run.phase = 5
-        run.grip[arms] = np.minimum(HOME_Q[14 + arms], d.qpos[scene.robot_qpos[14 + arms]] + cfg.release_clearance / 2)
-        run.hold(qv[-1], cfg.settle_time)
-        release_steps = np.zeros(2, int)
-        while cfg.release_step > 0:
-            # open further while a pad is still at the part (it may rest on the lower pad)
-            near = np.array([run.pad_gaps(a).min() < cfg.release_gap for a in arms])
-            more = arms[near & (run.grip[arms] < HOME_Q[14 + arms])]
-            if not len(more):
+        release_steps, sided_steps, release_shift = np.zeros(2, int), np.zeros(2, int), np.zeros(2)
+        # open by release_clearance, then by release_step while a pad is still at the part (it may
+        # rest on the lower pad); a sided release moves each finger only into free space (the arm
+        # shifts along the jaw axis when one finger opens more than the other)
+        run.grip[arms] = d.qpos[scene.robot_qpos[14 + arms]]
+        q_rel, first = qv[-1], True
+        while first or cfg.release_step > 0:
+            opening = []
+            for a in arms:
+                if run.grip[a] >= HOME_Q[14 + a] or (not first and run.pad_gaps(a).min() >= cfg.release_gap):
+                    continue
+                want = min(cfg.release_clearance if first else cfg.release_step, 2 * (HOME_Q[14 + a] - run.grip[a]))
+                u = np.full(2, want / 2)  # each finger's travel
+                if cfg.release_sided:
+                    room = np.maximum(run.pads_room(a, want + cfg.release_gap) - cfg.release_gap, 0.0)
+                    u = np.minimum(u, room)
+                    u = np.minimum(room, u + (want - u.sum()) * (u < room))  # the other gives what one cannot
+                    if u.sum() < 1e-4:
+                        continue
+                    if abs(u[0] - u[1]) > 1e-6:
+                        sided_steps[a] += 1
+                        x = d.site_xmat[scene.tcp_sites[a]].reshape(3, 3)[:, 0]
+                        side = np.sign((d.geom_xpos[scene.pad_geoms[a, 1]] - d.site_xpos[scene.tcp_sites[a]]) @ x)
+                        release_shift[a] += side * (u[1] - u[0]) / 2
+                run.grip[a] += u.sum() / 2
+                release_steps[a] += 0 if first else 1
+                opening.append(a)
+            if not opening:
                 break
-            run.grip[more] = np.minimum(HOME_Q[14 + more], run.grip[more] + cfg.release_step / 2)
-            release_steps[more] += 1
-            run.hold(qv[-1], cfg.release_settle)
+            q_rel = run.shifted(qv[-1], release_shift) if np.any(release_shift != 0.0) else qv[-1]
+            run.hold(q_rel, cfg.settle_time if first else cfg.release_settle)
+            first = False
         release_open = d.qpos[scene.robot_qpos[14:16]].copy()
         release_gaps = {a: run.pad_gaps(a) for a in arms}
         run.phase = 6
-        q_ret = qv[-1].copy()
+        q_ret = q_rel.copy()
         scratch = mujoco.MjData(m)
         for a in arms:
             T = scene.tcp_poses()[a]
             T[:3, 3] -= cfg.retreat_distance * T[:3, 2]
             scratch.qpos[:] = d.qpos
             q_ret, _, _ = tcp_ik(m, scratch, scene.robot_qpos, scene.robot_dof, scene.tcp_sites[a], a, q_ret, T)
-        run.move(qv[-1], q_ret)
+        run.move(q_rel, q_ret)
         run.phase = 7
         run.hold(q_ret, cfg.settle_time)
         run.record()
@@ -622,6 +659,8 @@ def simulate_plan(
                   "seat_shift_mm": {("right", "left")[a]: round(1000 * float(shift[a]), 2) for a in arms}},
         "release": {"jaw_mm": {("right", "left")[a]: round(2000 * float(release_open[a]), 2) for a in arms},
                     "further_openings": {("right", "left")[a]: int(release_steps[a]) for a in arms},
+                    "sided_openings": {("right", "left")[a]: int(sided_steps[a]) for a in arms},
+                    "shift_mm": {("right", "left")[a]: round(1000 * float(release_shift[a]), 2) for a in arms},
                     "pad_gap_mm": {("right", "left")[a]: [round(1000 * float(g), 2) for g in release_gaps[a]] for a in arms}},
         "exec": {"final_error_mm": [round(1000 * e[0], 2) for e in final_err],
                  "final_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in final_err],
