@@ -104,6 +104,12 @@ class PipelineConfig:
     (no grasp fits it) and get grasps 2.2–3 mm wide this way. Off until measured over the robot
     trials; on the session-21 sunglasses trial alone the plan is found, but the arm turns 34° in
     the jaw (Grasp fails)."""
+    plan_extent_fallback: bool = True
+    """When no plan is found on the meshes of the Gaussian centres, plan again on those of their
+    extents (as `plan_extent_meshes`; `summary.json`'s `plan.meshes` says which). A thin part has
+    its centres on a sheet (the studio sunglasses' 4 mm temple) and no grasp seats on it; every
+    plan found on the centres stays as it was. On the tracked sunglasses (session 43, table yaw
+    0, with the sided release of `SimConfig.release_sided`) the extents' plan passes every stage."""
     plan_scan_surface: bool = False
     """Plan on the parts' surfaces as the scan's depth saw them (`parts.scan_surface_points`: the
     depth maps back-projected inside each part's mask, plus the Gaussian centres no scan view
@@ -374,9 +380,17 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
             mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         hand_parts = anchored_hand_parts(traj)
         hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
-        plan = plan_robot(load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands,
-                          config=_plan_config(cfg), mesh_points=mesh_points, hand_parts=hand_parts,
-                          hand_points=hand_points, free_parts=free_parts(traj))  # fmt: skip
+        run_plan = lambda mesh: plan_robot(  # noqa: E731
+            load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands, config=_plan_config(cfg),
+            mesh_points=mesh, hand_parts=hand_parts, hand_points=hand_points, free_parts=free_parts(traj))
+        plan = run_plan(mesh_points)
+        rep["plan"]["meshes"] = "extents" if cfg.plan_extent_meshes else "centres"
+        if not plan.success and mesh_points is None and cfg.plan_extent_fallback:
+            log(f"plan: {plan.result_name} on the Gaussian centres' meshes; planning on their extents")
+            first = plan
+            plan = run_plan([np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)])
+            rep["plan"]["meshes"] = "extents (fallback)"
+            rep["plan"]["centres_result"] = f"{first.result_name} ({first.message})"
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:
             from .plan import log_plan
