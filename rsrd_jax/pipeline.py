@@ -264,6 +264,20 @@ def _stage(name: str, report: dict, log):
     return _Timer()
 
 
+def plan_on_meshes(run_plan, extents, cfg: PipelineConfig, log=print):
+    """The pipeline's plan: on the Gaussian centres' meshes (``run_plan(None)``), or on their
+    extents' (``run_plan(extents())``) with ``cfg.plan_extent_meshes``, or after a failure on the
+    centres with ``cfg.plan_extent_fallback``. Returns (plan, which meshes, the failed plan on
+    the centres or None)."""
+    if cfg.plan_extent_meshes:
+        return run_plan(extents()), "extents", None
+    plan = run_plan(None)
+    if plan.success or not cfg.plan_extent_fallback:
+        return plan, "centres", None
+    log(f"plan: {plan.result_name} on the Gaussian centres' meshes; planning on their extents")
+    return run_plan(extents()), "extents (fallback)", plan
+
+
 def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = PipelineConfig(), log=print,
                  studio_dir: str | Path | None = None, model_dir: str | Path | None = None,
                  track_dir: str | Path | None = None) -> dict:  # fmt: skip
@@ -375,21 +389,14 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         if cfg.plan_scan_surface:
             part_points = [p - cents[k] for k, p in enumerate(model_scan_surface(model, studio_dir / "scan"))]
         hands = studio_hands_in_object_frame(studio_dir, traj.T_cam_obj)
-        mesh_points = None
-        if cfg.plan_extent_meshes:
-            mesh_points = [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]
         hand_parts = anchored_hand_parts(traj)
         hand_points = anchored_hand_points(traj) if cfg.plan_hand_grasps else None
         run_plan = lambda mesh: plan_robot(  # noqa: E731
             load_yumi(), part_points, traj.T_obj_part, reg.T_robot_obj, hands=hands, config=_plan_config(cfg),
             mesh_points=mesh, hand_parts=hand_parts, hand_points=hand_points, free_parts=free_parts(traj))
-        plan = run_plan(mesh_points)
-        rep["plan"]["meshes"] = "extents" if cfg.plan_extent_meshes else "centres"
-        if not plan.success and mesh_points is None and cfg.plan_extent_fallback:
-            log(f"plan: {plan.result_name} on the Gaussian centres' meshes; planning on their extents")
-            first = plan
-            plan = run_plan([np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)])
-            rep["plan"]["meshes"] = "extents (fallback)"
+        extents = lambda: [np.asarray(model.part_extent_points(k)) - cents[k] for k in range(model.num_parts)]  # noqa: E731
+        plan, rep["plan"]["meshes"], first = plan_on_meshes(run_plan, extents, cfg, log)
+        if first is not None:
             rep["plan"]["centres_result"] = f"{first.result_name} ({first.message})"
         save_plan(plan, out / "plan")
         if cfg.rerun and plan.success:

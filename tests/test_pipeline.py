@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from rsrd_jax.io import load_plan, load_trajectory
-from rsrd_jax.pipeline import PipelineConfig, run_pipeline, studio_hands_in_object_frame, studio_separable
+from rsrd_jax.pipeline import (PipelineConfig, plan_on_meshes, run_pipeline, studio_hands_in_object_frame,
+                               studio_separable)  # fmt: skip
 from rsrd_jax.studio import StudioConfig, make_object
 
 
@@ -69,6 +70,41 @@ def test_hand_keypoints_follow_the_tracked_object_frame(tmp_path):
     M = np.asarray(T_ds.inverse().as_matrix(), np.float64)
     expect = kw @ M[:3, :3].T + M[:3, 3]
     np.testing.assert_allclose(kp, expect, atol=1e-5)
+
+
+def test_the_pipeline_plans_on_the_gaussian_extents_only_when_the_centres_give_no_plan():
+    """`plan_on_meshes`: a plan found on the centres' meshes is kept and the extents are never
+    computed; a failed one is followed by a plan on the extents (reported as a fallback, with the
+    failed plan); the fallback can be turned off, and `plan_extent_meshes` plans on the extents
+    at once."""
+    from types import SimpleNamespace
+
+    calls = []
+
+    def planner(found_on):
+        def run(mesh):
+            calls.append("centres" if mesh is None else "extents")
+            return SimpleNamespace(success=calls[-1] in found_on, result_name="collision", message="m")
+        return run
+
+    def extents():
+        calls.append("extent points")
+        return ["points"]
+
+    cfg = PipelineConfig()
+    assert cfg.plan_extent_fallback and not cfg.plan_extent_meshes
+    plan, meshes, first = plan_on_meshes(planner({"centres", "extents"}), extents, cfg, log=lambda m: None)
+    assert plan.success and meshes == "centres" and first is None and calls == ["centres"]
+    calls.clear()
+    plan, meshes, first = plan_on_meshes(planner({"extents"}), extents, cfg, log=lambda m: None)
+    assert plan.success and meshes == "extents (fallback)" and not first.success
+    assert calls == ["centres", "extent points", "extents"]
+    calls.clear()
+    plan, meshes, first = plan_on_meshes(planner({"extents"}), extents, dataclasses.replace(cfg, plan_extent_fallback=False))
+    assert not plan.success and meshes == "centres" and first is None and calls == ["centres"]
+    calls.clear()
+    plan, meshes, first = plan_on_meshes(planner({"extents"}), extents, dataclasses.replace(cfg, plan_extent_meshes=True))
+    assert plan.success and meshes == "extents" and first is None and calls == ["extent points", "extents"]
 
 
 def test_robot_trial_rates_are_cumulative():
