@@ -371,7 +371,8 @@ def cmd_simulate(a: argparse.Namespace) -> int:
         plan = load_plan(a.plan)
         if not 0.0 <= a.seat_shift < float("inf"):
             raise ValueError(f"--seat-shift: expected a shift ≥ 0 m, got {a.seat_shift}")
-        cfg = SimConfig(root=a.root, start=a.start, joint_speed=a.joint_speed, seat_max_shift=a.seat_shift)
+        cfg = SimConfig(root=a.root, start=a.start, joint_speed=a.joint_speed, seat_max_shift=a.seat_shift,
+                        release_sided=not a.symmetric_release)  # fmt: skip
         t0 = time.perf_counter()
         res = simulate_plan(plan, a.studio, cfg, video=a.video, progress=not a.quiet)
         paths = save_sim_result(res, out, fps=cfg.fps)
@@ -596,6 +597,9 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--seat-shift", type=float, default=0.01, metavar="M",
                     help="compliant seating: largest shift (m) the arm yields along the jaw axis while the jaw "
                          "closes, kept through the motion (0: a stiff arm, the jaw stalls on the first finger)")
+    sm.add_argument("--symmetric-release", action="store_true",
+                    help="open both fingers about the TCP on release (default: each finger opens only into free "
+                         "space and the arm moves toward the one that opens more)")  # fmt: skip
     sm.add_argument("--quiet", action="store_true", help="no progress bar")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing sim.json")
     sm.set_defaults(func=cmd_simulate)

@@ -225,6 +225,11 @@ def test_cli_simulate_writes_sim_json(stapler, gt_plan, tmp_path):
                "--seat-shift", "0", "--quiet"])  # fmt: skip
     assert rc == 0
     assert json.loads((tmp_path / "sim4" / "sim.json").read_text())["metrics"]["grasp"]["seat_shift_mm"] == {"right": 0.0}
+    rc = main(["simulate", str(tmp_path / "plan"), "--studio", str(stapler), "--out", str(tmp_path / "sim5"),
+               "--symmetric-release", "--quiet"])  # fmt: skip
+    assert rc == 0
+    release = json.loads((tmp_path / "sim5" / "sim.json").read_text())["metrics"]["release"]
+    assert release["sided_openings"] == {"right": 0} and release["shift_mm"] == {"right": 0.0}
 
 
 
