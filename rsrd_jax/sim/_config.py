@@ -131,7 +131,9 @@ class SimConfig(eqx.Module):
     scissors pad in the ring's hole pushed the far wall as the jaw opened (the blade turned
     4–10° more after the motion), and a red_box lower pad between the lid and the box pressed
     the box down and dragged it on the retreat (box tilted 12–80°, lid 18–19° off the demo's
-    final angle where the motion ended 6–7° off)."""
+    final angle where the motion ended 6–7° off). Known regression: on `make demo`'s stapler
+    plan the base, lifted by the motion, keeps resting on the lower pad with the sided release
+    and the retreat drags it (Exec fails); the symmetric release passes that plan."""
     release_settle: float = 0.1
     """Settle time (s) after each further opening of ``release_step``."""
     retreat_distance: float = 0.08

@@ -249,17 +249,23 @@ class _Runner:
         return np.array([min(mujoco.mj_geomDistance(m, d, int(s.pad_geoms[a, f]), int(h), 0.05, None)
                              for h in s.part_geoms[self.part[a]]) for f in range(2)])  # fmt: skip
 
+    def pad_outward(self, a: int | np.integer, f: int) -> np.ndarray:
+        """(3,) world direction in which finger pad ``f`` of arm ``a`` moves as the jaw opens
+        (± the TCP's x axis, away from the TCP)."""
+        d, s = self.d, self.s
+        x = d.site_xmat[s.tcp_sites[a]].reshape(3, 3)[:, 0]
+        return np.sign((d.geom_xpos[s.pad_geoms[a, f]] - d.site_xpos[s.tcp_sites[a]]) @ x) * x
+
     def pads_room(self, a: int | np.integer, reach: float) -> np.ndarray:
         """(2,) free distance (m) of each finger pad of arm ``a`` on its outer side, where the pad
         moves as the jaw opens: the distance to the nearest object surface lying outward of the
         pad's centre (a pad in a ring's hole before the far wall, a lower pad between a lid and its
         box), ``reach`` when none is nearer."""
         m, d, s = self.m, self.d, self.s
-        x = d.site_xmat[s.tcp_sites[a]].reshape(3, 3)[:, 0]
         fromto, out = np.zeros(6), np.full(2, float(reach))
         for f in range(2):
             g = int(s.pad_geoms[a, f])
-            away = np.sign((d.geom_xpos[g] - d.site_xpos[s.tcp_sites[a]]) @ x) * x
+            away = self.pad_outward(a, f)
             for h in np.concatenate(s.part_geoms):
                 dist = mujoco.mj_geomDistance(m, d, g, int(h), reach, fromto)
                 if dist < out[f] and (fromto[3:] - d.geom_xpos[g]) @ away > 0.0:
@@ -535,11 +541,10 @@ def simulate_plan(
                     u = np.minimum(room, u + (want - u.sum()) * (u < room))  # the other gives what one cannot
                     if u.sum() < 1e-4:
                         continue
-                    if abs(u[0] - u[1]) > 1e-6:
+                    if abs(u[0] - u[1]) > 1e-6:  # toward pad 1 when it opens more (shift: along TCP x)
                         sided_steps[a] += 1
                         x = d.site_xmat[scene.tcp_sites[a]].reshape(3, 3)[:, 0]
-                        side = np.sign((d.geom_xpos[scene.pad_geoms[a, 1]] - d.site_xpos[scene.tcp_sites[a]]) @ x)
-                        release_shift[a] += side * (u[1] - u[0]) / 2
+                        release_shift[a] += (run.pad_outward(a, 1) @ x) * (u[1] - u[0]) / 2
                 run.grip[a] += u.sum() / 2
                 release_steps[a] += 0 if first else 1
                 opening.append(a)
