@@ -368,6 +368,26 @@ def test_a_sided_release_leaves_the_object_where_the_motion_ended(tmp_path, name
         assert root_turn(both) > 10.0 and root_turn(sided) < 3.0, (root_turn(both), root_turn(sided))
 
 
+def test_a_sided_release_still_lets_go_when_neither_pad_has_room(tmp_path):
+    """Regression (session 44): a tracked plan of the demo-sized stapler at the default table yaw
+    (`tests/data/stapler_release_plan`) ends with one pad between the arm and the base and the
+    other in the arm's slot, each with an object surface on its outer side within its opening
+    step. The sided release then opened neither finger and retreated with the grip still
+    squeezing the arm (the jaw 17.7 mm, narrower than the 18.9 mm it closed to). Now the first
+    opening pushes both fingers by ``release_clearance``: the jaw ends wider than it closed to
+    (MuJoCo's finger joints; 20.4 mm, the arm and base stop the fingers)."""
+    studio = tmp_path / "stapler"
+    make_object("stapler", studio, StudioConfig(seed=0, demo_frames=30, demo_size=(32, 24), robot_size=(32, 24),
+                                                parts=("demo", "robot_view")))  # fmt: skip
+    plan = load_plan(Path(__file__).parent / "data" / "stapler_release_plan")
+    r = simulate_plan(plan, studio, progress=False)
+    assert r.stages["grasp"], r.reasons
+    a = ("right", "left")[int(np.flatnonzero(plan.active)[0])]
+    assert r.metrics["release"]["jaw_mm"][a] > r.metrics["grasp"]["jaw_mm"][a] + 1.0, r.metrics
+    assert r.metrics["release"]["sided_openings"][a] == 0  # both fingers pushed, no shift
+    assert r.metrics["release"]["shift_mm"][a] == 0.0
+
+
 def _planned_from_ground_truth(root, square: bool = False, config=None):
     """The planner's plan from a studio object's ground truth (true part surfaces, trajectory
     and table pose; a separable object's parts free, as the pipeline passes them) with the

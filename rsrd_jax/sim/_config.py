@@ -125,15 +125,18 @@ class SimConfig(eqx.Module):
     """On release each finger pad opens only into free space: a pad with an object surface on its
     outer side (where it moves as the jaw opens) within its step plus ``release_gap`` moves only
     up to that gap, the other finger opens by what it cannot, and the arm shifts along the jaw
-    axis by half the difference (the opening stops when neither can move). A check from the
+    axis by half the difference (the opening stops when neither can move; when neither has room
+    for the first opening, both push by it: a grip that never lets go drags its part away on
+    the retreat, as one of the demo-sized stapler's plans did, wedged between the arm and the
+    base with its other pad in the arm's slot). A check from the
     fingers' proximity to the object, as pad sensors or the planner's object model would give it.
     False opens both fingers about the TCP (sessions ≤ 42): on tracked robot-trial plans a
     scissors pad in the ring's hole pushed the far wall as the jaw opened (the blade turned
     4–10° more after the motion), and a red_box lower pad between the lid and the box pressed
     the box down and dragged it on the retreat (box tilted 12–80°, lid 18–19° off the demo's
-    final angle where the motion ended 6–7° off). Known regression: on `make demo`'s stapler
-    plan the base, lifted by the motion, keeps resting on the lower pad with the sided release
-    and the retreat drags it (Exec fails); the symmetric release passes that plan."""
+    final angle where the motion ended 6–7° off). Known failure: on a `make demo` stapler plan
+    of session 43 the base, lifted by the motion, kept resting on the lower pad with the sided
+    release and the retreat dragged it (Exec failed); the symmetric release passed that plan."""
     release_settle: float = 0.1
     """Settle time (s) after each further opening of ``release_step``."""
     retreat_distance: float = 0.08

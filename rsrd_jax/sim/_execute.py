@@ -539,6 +539,8 @@ def simulate_plan(
                     room = np.maximum(run.pads_room(a, want + cfg.release_gap) - cfg.release_gap, 0.0)
                     u = np.minimum(u, room)
                     u = np.minimum(room, u + (want - u.sum()) * (u < room))  # the other gives what one cannot
+                    if first and u.sum() < 1e-4:  # neither has room: both push once (the grip must let go)
+                        u = np.full(2, want / 2)
                     if u.sum() < 1e-4:
                         continue
                     if abs(u[0] - u[1]) > 1e-6:  # toward pad 1 when it opens more (shift: along TCP x)
