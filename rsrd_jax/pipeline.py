@@ -378,7 +378,9 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
         init_ok = err["translation_mm"] <= cfg.init_position_tol_m * 1e3 and err["rotation_deg"] <= cfg.init_rotation_tol_deg
         rep["register"].update(status=reg.status_name, error=err, residual_mm=reg.residual_mm, init_ok=bool(init_ok),
                                T_robot_obj=reg.T_robot_obj.tolist(), T_robot_obj_gt=np.asarray(T_gt).tolist())  # fmt: skip
-        atomic_write_json(out / "register" / "registration.json", {**rep["register"], "info": reg.info})
+        seed_err = [registration_error(np.asarray(T), T_gt, np.concatenate(pts)) for T in reg.info["seed_poses_robot"]]
+        atomic_write_json(out / "register" / "registration.json", {**rep["register"], "info": reg.info, "seed_errors": [
+            {k: round(v, 2) for k, v in e.items()} for e in seed_err]})  # each seed's pose (before ICP) against the truth
         rep["register"]["summary"] = (f"{err['translation_mm']:.1f} mm, {err['rotation_deg']:.1f}° "
                                       f"({'ok' if init_ok else 'above'} {cfg.init_position_tol_m * 1e3:.0f} mm / {cfg.init_rotation_tol_deg:.0f}°)")  # fmt: skip
 

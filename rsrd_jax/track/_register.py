@@ -399,6 +399,7 @@ def register_object(
     lap("self_check")
     info = {
         "seed_losses": np.asarray(losses).tolist(), "seed_feature_losses": np.asarray(feats).tolist(), "best_seed": best, "best_yaw_deg": float(np.rad2deg(yaws[best])),
+        "seed_poses_robot": np.asarray((T_robot_cam @ jaxlie.SE3(jnp.asarray(Ts))).wxyz_xyz).tolist(),
         "final_loss": final_loss, "refined": refined, "blob_pixels": int(blob.sum()),
         "icp": icp_info, "time_s": time.perf_counter() - t0, "timings_s": timings,
     }  # fmt: skip
