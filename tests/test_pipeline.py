@@ -33,6 +33,9 @@ def test_pipeline_end_to_end_writes_every_artefact(tmp_path):
     # the registration is scored against the studio's true pose, and is good enough to grasp with
     assert rep["register"]["error"]["translation_mm"] < 20.0 and rep["register"]["error"]["rotation_deg"] < 10.0
     assert rep["stages"]["init"] is True
+    reg = json.loads((out / "register" / "registration.json").read_text())
+    seeds = reg["seed_errors"]  # each seed's optimised pose scored against the truth
+    assert len(seeds) == 8 and seeds[reg["info"]["best_seed"]]["rotation_deg"] < 15.0, seeds
     traj = load_trajectory(out / "track")
     assert traj.num_frames == 12 and np.all(np.isfinite(traj.T_obj_part))
     plan = load_plan(out / "plan")
