@@ -370,12 +370,15 @@ def test_a_sided_release_leaves_the_object_where_the_motion_ended(tmp_path, name
 
 def test_a_sided_release_still_lets_go_when_neither_pad_has_room(tmp_path):
     """Regression (session 44): a tracked plan of the demo-sized stapler at the default table yaw
-    (`tests/data/stapler_release_plan`) ends with one pad between the arm and the base and the
+    (`tests/data/stapler_release_plan`, planned with a 6 mm pad clearance on the approach, an
+    experiment of that session recorded in its config as `approach_pad_margin`, not a planner
+    option) ends with one pad between the arm and the base and the
     other in the arm's slot, each with an object surface on its outer side within its opening
     step. The sided release then opened neither finger and retreated with the grip still
     squeezing the arm (the jaw 17.7 mm, narrower than the 18.9 mm it closed to). Now the first
     opening pushes both fingers by ``release_clearance``: the jaw ends wider than it closed to
-    (MuJoCo's finger joints; 20.4 mm, the arm and base stop the fingers)."""
+    (MuJoCo's finger joints; 20.4 mm, the arm and base stop the fingers). The plan still fails
+    Exec: the pads stay on the arm and the retreat drags the stapler (77 mm)."""
     studio = tmp_path / "stapler"
     make_object("stapler", studio, StudioConfig(seed=0, demo_frames=30, demo_size=(32, 24), robot_size=(32, 24),
                                                 parts=("demo", "robot_view")))  # fmt: skip
