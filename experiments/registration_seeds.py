@@ -36,7 +36,7 @@ from rsrd_jax.parts import build_object_model, load_object_model, save_object_mo
 from rsrd_jax.pipeline import PipelineConfig  # noqa: E402
 from rsrd_jax.plan import read_robot_object_pose  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
-from rsrd_jax.track import InitConfig, read_robot_view, register_object, registration_error  # noqa: E402
+from rsrd_jax.track import read_robot_view, register_object, registration_error  # noqa: E402
 
 FLIP_DEG = 10.0
 """A seed whose rotation error exceeds this is a flip (the pipeline's Init tolerance)."""
@@ -69,7 +69,7 @@ def register_object_at_yaws(name: str, work: Path, cfg: PipelineConfig, yaws: in
     model = load_object_model(odir / "model")
     pts = np.concatenate([np.asarray(model.part_points(k)) for k in range(model.num_parts)])
     yaw0 = float(json.loads((studio / "object.json").read_text())["products"]["robot_view"]["yaw_deg"])
-    init = InitConfig(yaw_seeds=cfg.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3)  # as the pipeline
+    init = cfg.register_config()
     rows = []
     for k in range(yaws):
         yaw = (yaw0 + 360.0 * k / yaws + 180.0) % 360.0 - 180.0  # as experiments.robot_trials

@@ -162,6 +162,12 @@ class PipelineConfig:
         return BuildConfig(fit=FitConfig(iterations=self.fit_iterations, max_gaussians=self.max_gaussians, seed=self.seed),
                            field=FieldConfig(iterations=self.field_iterations, seed=self.seed))  # fmt: skip
 
+    def register_config(self):
+        """The registration's `InitConfig` (robot view, metric depth)."""
+        from .track import InitConfig
+
+        return InitConfig(yaw_seeds=self.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3)
+
     def track_config(self):
         """The `TrackConfig` of the pipeline's tracking stage (also used by the experiments)."""
         from .track import LossWeights, TrackConfig
@@ -372,13 +378,14 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     # ---- register the object in the robot's workspace (robot-view RGB + metric depth)
     with _stage("register", rep, log):
         view = read_robot_view(studio_dir)
-        reg = register_object(model, view, InitConfig(yaw_seeds=cfg.register_seeds, iters=50, refine_iters=0, lr_start=2e-2, lr_end=2e-3))
+        reg = register_object(model, view, cfg.register_config())
         T_gt = read_robot_object_pose(studio_dir)
-        err = registration_error(reg.T_robot_obj, T_gt, np.concatenate(pts))
+        all_pts = np.concatenate(pts)
+        err = registration_error(reg.T_robot_obj, T_gt, all_pts)
         init_ok = err["translation_mm"] <= cfg.init_position_tol_m * 1e3 and err["rotation_deg"] <= cfg.init_rotation_tol_deg
         rep["register"].update(status=reg.status_name, error=err, residual_mm=reg.residual_mm, init_ok=bool(init_ok),
                                T_robot_obj=reg.T_robot_obj.tolist(), T_robot_obj_gt=np.asarray(T_gt).tolist())  # fmt: skip
-        seed_err = [registration_error(np.asarray(T), T_gt, np.concatenate(pts)) for T in reg.info["seed_poses_robot"]]
+        seed_err = [registration_error(np.asarray(T), T_gt, all_pts) for T in reg.info["seed_poses_robot"]]
         atomic_write_json(out / "register" / "registration.json", {**rep["register"], "info": reg.info, "seed_errors": [
             {k: round(v, 2) for k, v in e.items()} for e in seed_err]})  # each seed's pose (before ICP) against the truth
         rep["register"]["summary"] = (f"{err['translation_mm']:.1f} mm, {err['rotation_deg']:.1f}° "

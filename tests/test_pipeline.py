@@ -51,6 +51,8 @@ def test_pipeline_end_to_end_writes_every_artefact(tmp_path):
 def test_pipeline_track_config_carries_the_pipeline_options():
     on, off = PipelineConfig().track_config(), PipelineConfig(track_hinge_axes=False, track_joints=False).track_config()
     assert on.hinge_axes and on.joints and not off.hinge_axes and not off.joints
+    # the registration's seeds (the pipeline and experiments.registration_seeds share them)
+    assert PipelineConfig(register_seeds=12).register_config().yaw_seeds == 12
     assert on.weights.motion == PipelineConfig().track_motion and on.lr_start == PipelineConfig().track_lr_start
 
 
