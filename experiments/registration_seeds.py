@@ -4,12 +4,12 @@ For each object the studio scan is made and the ObjectModel built at the pipelin
 `rsrd-jax demo` and the robot trials), then the object is registered from the robot view at the
 robot trials' 10 table yaws with the pipeline's registration settings. Every seed's optimised
 pose (`Registration.info["seed_poses_robot"]`, before ICP) is scored against the studio's true
-pose, so that seed-selection rules can be compared offline: the registration picks the seed of
-lowest total loss; the table counts the flips (rotation error > 10°) each rule would make:
+pose, so that seed-selection rules can be compared offline; the table counts the flips (rotation
+error > 10°) each rule would make:
 
-- `total`: lowest total loss (what `register_object` does);
+- `total`: lowest total loss (`register_object` until session 44);
 - `feature within X`: among the seeds whose total loss is within X of the lowest, the lowest
-  feature loss;
+  feature loss (`track.select_seed`; the pipeline's registration since session 45 uses 5 %);
 - `feature`: lowest feature loss.
 
     python -m experiments.registration_seeds [--objects usb_plug sunglasses ...] [--work DIR] [--out STEM]
@@ -36,7 +36,7 @@ from rsrd_jax.parts import build_object_model, load_object_model, save_object_mo
 from rsrd_jax.pipeline import PipelineConfig  # noqa: E402
 from rsrd_jax.plan import read_robot_object_pose  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
-from rsrd_jax.track import read_robot_view, register_object, registration_error  # noqa: E402
+from rsrd_jax.track import read_robot_view, register_object, registration_error, select_seed  # noqa: E402
 
 FLIP_DEG = 10.0
 """A seed whose rotation error exceeds this is a flip (the pipeline's Init tolerance)."""
@@ -48,10 +48,7 @@ def rules() -> dict:
     """Seed-selection rules: name -> f(total losses, feature losses) -> seed index."""
     out = {"total": lambda L, F: int(np.argmin(L))}
     for w in WINDOWS:
-        def within(L, F, w=w):
-            near = np.flatnonzero(np.asarray(L) <= np.min(L) * (1.0 + w))
-            return int(near[np.argmin(np.asarray(F)[near])])
-        out[f"feature within {w:.1%}"] = within
+        out[f"feature within {w:.1%}"] = lambda L, F, w=w: select_seed(L, F, w)
     out["feature"] = lambda L, F: int(np.argmin(F))
     return out
 
@@ -77,7 +74,7 @@ def register_object_at_yaws(name: str, work: Path, cfg: PipelineConfig, yaws: in
         if k:
             make_object(name, view_dir, StudioConfig(seed=cfg.seed, robot_object_yaw_deg=yaw, parts=("robot_view",)),
                         overwrite=True)  # fmt: skip
-        reg = register_object(model, read_robot_view(view_dir), init)
+        reg = register_object(model, read_robot_view(view_dir), init, feature_window=cfg.register_feature_window)
         T_gt = read_robot_object_pose(view_dir)
         seeds = [registration_error(np.asarray(T), T_gt, pts) for T in reg.info["seed_poses_robot"]]
         rows.append({"yaw_deg": round(yaw, 2), "final": registration_error(reg.T_robot_obj, T_gt, pts),

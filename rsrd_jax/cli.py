@@ -135,7 +135,7 @@ def cmd_register(a: argparse.Namespace) -> int:
         model = load_object_model(a.model)
         view = read_robot_view(a.view)
         reg = register_object(model, view, InitConfig(yaw_seeds=a.yaw_seeds, iters=a.iters, refine_iters=0,
-                                                       lr_start=2e-2, lr_end=2e-3))  # fmt: skip
+                                                       lr_start=2e-2, lr_end=2e-3), feature_window=a.feature_window)  # fmt: skip
     except ArtefactError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -442,6 +442,8 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("view", help="robot view directory (rgb.png, depth.png in mm, camera.json with T_robot_cam)")
     rg.add_argument("--out", required=True, help="output directory (registration.json)")
     rg.add_argument("--yaw-seeds", type=int, default=16, help="yaw seeds over 360°")
+    rg.add_argument("--feature-window", type=float, default=0.05,
+                    help="pick the lowest feature loss among seeds within this fraction of the lowest total loss (0: lowest total)")
     rg.add_argument("--iters", type=int, default=50, help="Adam iterations per seed and for the refinement")
     rg.add_argument("--overwrite", action="store_true", help="replace an existing registration")
     rg.set_defaults(func=cmd_register)

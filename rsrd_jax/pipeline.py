@@ -141,6 +141,9 @@ class PipelineConfig:
     `robot_trials_s34_frog_square.md`)."""
     register_seeds: int = 16
     """Registration yaw seeds."""
+    register_feature_window: float = 0.05
+    """Registration seed selection: the lowest feature loss among the seeds whose total loss is
+    within this fraction of the lowest (0: the lowest total), see `track.select_seed`."""
     init_position_tol_m: float = 0.02
     """Init stage: registration centroid error below this (m)."""
     init_rotation_tol_deg: float = 10.0
@@ -378,7 +381,7 @@ def run_pipeline(object_name: str, out: str | Path, cfg: PipelineConfig = Pipeli
     # ---- register the object in the robot's workspace (robot-view RGB + metric depth)
     with _stage("register", rep, log):
         view = read_robot_view(studio_dir)
-        reg = register_object(model, view, cfg.register_config())
+        reg = register_object(model, view, cfg.register_config(), feature_window=cfg.register_feature_window)
         T_gt = read_robot_object_pose(studio_dir)
         all_pts = np.concatenate(pts)
         err = registration_error(reg.T_robot_obj, T_gt, all_pts)

@@ -88,3 +88,18 @@ def test_registration_bad_inputs(studio, tmp_path):
     write_depth_png(d / "depth.png", np.ones((10, 10), np.float32))
     with pytest.raises(ArtefactError, match="differs from camera.json"):
         read_robot_view(d)
+
+
+def test_seed_selection_takes_the_lowest_feature_loss_among_near_lowest_totals():
+    rng = np.random.default_rng(0)
+    for _ in range(200):  # against a brute-force reading of the rule on random losses, either sign
+        L = rng.normal(size=16) * rng.choice([0.01, 1.0]) + rng.choice([-1.0, 0.0, 3.0])
+        F = rng.uniform(size=16)
+        for w in (0.0, 0.02, 0.05, 0.5):
+            ok = [i for i in range(16) if L[i] - L.min() <= w * abs(L.min())]
+            assert _register.select_seed(L, F, w) == min(ok, key=lambda i: F[i])
+    # the session-44 flip pattern: a right seed 3 % above the lowest total, 5 % lower in features
+    L, F = np.array([1.00, 1.03, 1.20]), np.array([0.50, 0.475, 0.10])
+    assert _register.select_seed(L, F, 0.0) == 0 and _register.select_seed(L, F, 0.05) == 1
+    with pytest.raises(ValueError, match="seed losses"):
+        _register.select_seed(L, F[:2])

@@ -56,5 +56,6 @@ from ._register import (
     read_robot_view as read_robot_view,
     register_object as register_object,
     registration_error as registration_error,
+    select_seed as select_seed,
 )
 from ._track import initialize_demo as initialize_demo, track_video as track_video
