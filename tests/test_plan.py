@@ -504,6 +504,41 @@ def test_bimanual_plan_couples_both_arms(robot):
         plan_robot(robot, [_cube(0.015), _cube(0.015)], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg, hand_parts=(0, 2))
 
 
+def test_single_arm_fallback_takes_the_part_that_moved_most(robot, monkeypatch):
+    """A bimanual demo whose pair plan fails falls back to one arm on the part that moved most
+    relative to its parent, though both hands' fingertips rank the other part first (a hand held
+    it still; the tracked demo drifts it by 15 mm, above `min_motion_fraction`): usb_plug's
+    single-arm fallbacks held its brick and left the plug in it."""
+    from rsrd_jax.plan import _search
+
+    mover = _trajectory()  # part 1: slides 6 cm, lifts 3 cm, turns 20°
+    still = np.repeat(mover[:1], len(mover), 0)
+    still[:, 0, 5] += 0.12  # part 0, 12 cm to the side, drifting 15 mm
+    still[:, 0, 4] += np.linspace(0.0, 0.015, len(mover))
+    traj = np.concatenate([still, mover], 1)
+    # both hands' fingertips on part 0 all along: the hand ranking puts it first
+    tips = np.repeat(np.repeat(still[:, :, None, 4:], 2, 1), 2, 2) + np.array([0.0, 0.0, 0.025])
+    cfg = PlanConfig(num_keyframes=4, approach_steps=4, chunk_size=8, max_iterations=40, approach_candidates=4,
+                     top_k_per_arm=2, max_parts=1)  # fmt: skip
+    original = _search._plan_robot
+
+    def pair_fails(*a):  # the pair's plan cannot meet its tolerance: "unreachable"
+        c = a[6]
+        return original(*a[:6], dataclasses.replace(c, position_tolerance=1e-9) if c.bimanual else c, *a[7:])
+
+    monkeypatch.setattr(_search, "_plan_robot", pair_fails)
+    grasps = {0: _grasps(8, 0, 0.03), 1: _grasps(8, 0, 0.03)}
+    args = (robot, [_cube(0.015), _cube(0.015)], traj, T_ROBOT_OBJ)
+    plan = plan_robot(*args, hands=tips, grasps=grasps, config=cfg, hand_parts=(0, 1))
+    d = plan.info["bimanual"]
+    assert d["bimanual"] is True and d["fallback"] == "single-arm" and d["bimanual_result"] == "unreachable", d
+    assert d["fallback_parts"] == [1, 0]
+    assert plan.success and sorted(plan.part.tolist()) == [-1, 1], plan.info
+    # the hand ranking alone (no pair decided) takes part 0
+    alone = plan_robot(*args, hands=tips, grasps=grasps, config=dataclasses.replace(cfg, bimanual=False))
+    assert sorted(alone.part.tolist()) == [-1, 0]
+
+
 @pytest.mark.slow
 def test_cli_plan_from_model_and_trajectory_files(tmp_path):
     """`rsrd-jax plan MODEL TRAJ --object-pose ...` on a one-part cube model and a written

@@ -771,9 +771,15 @@ def plan_robot(
                        hand_points, free_parts)
     decision = {"mode": "auto", "bimanual": decided, "reason": why}
     if decided and not plan.success:  # a single arm may still reproduce part of the demo
-        single = _plan_robot(*args, dataclasses.replace(config, bimanual=False), mesh_points, hand_points, free_parts)
-        decision.update(fallback="single-arm", bimanual_result=plan.result_name, bimanual_message=plan.message,
-                        bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
+        # the largest part of it: the moved parts in the order of their motion relative to their
+        # parents. Both hands touched a part, so the hand ranking no longer tells them apart, and
+        # it may put first a part a hand only held still (usb_plug's brick, which the tracked
+        # demo moves a little, ranked before its pulled-out plug)
+        order = [int(k) for k in np.argsort(-motion, kind="stable") if motion[k] >= config.min_motion_fraction * motion.max()]
+        single_cfg = dataclasses.replace(config, bimanual=False, parts=tuple(order))
+        single = _plan_robot(*args, single_cfg, mesh_points, hand_points, free_parts)
+        decision.update(fallback="single-arm", fallback_parts=list(single_cfg.parts), bimanual_result=plan.result_name,
+                        bimanual_message=plan.message, bimanual_attempts=plan.info.get("attempts"))  # fmt: skip
         plan = single
     plan.info["bimanual"] = decision
     plan.info["config"] = dataclasses.asdict(config)  # as given (the decision above may override bimanual/parts)
