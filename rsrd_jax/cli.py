@@ -136,7 +136,7 @@ def cmd_register(a: argparse.Namespace) -> int:
         view = read_robot_view(a.view)
         reg = register_object(model, view, InitConfig(yaw_seeds=a.yaw_seeds, iters=a.iters, refine_iters=0,
                                                        lr_start=2e-2, lr_end=2e-3), feature_window=a.feature_window)  # fmt: skip
-    except ArtefactError as e:
+    except (ArtefactError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     rec = {"status": reg.status_name, "T_robot_obj": reg.T_robot_obj.tolist(), "T_cam_obj": reg.T_cam_obj.tolist(), "loss": reg.loss,

@@ -70,6 +70,8 @@ def test_registration_bad_inputs(studio, tmp_path):
     nan = view.__class__(rgb=view.rgb, depth=np.full_like(empty, np.nan), intrinsics=view.intrinsics, T_robot_cam=view.T_robot_cam)
     with pytest.raises(ArtefactError, match="finite metric depth"):
         register_object(model, nan, FAST, extractor=ext)
+    with pytest.raises(ValueError, match="feature_window"):
+        register_object(model, view, FAST, extractor=ext, feature_window=float("nan"))
     # missing files and fields name the file
     d = tmp_path / "rv"
     d.mkdir()
@@ -103,3 +105,5 @@ def test_seed_selection_takes_the_lowest_feature_loss_among_near_lowest_totals()
     assert _register.select_seed(L, F, 0.0) == 0 and _register.select_seed(L, F, 0.05) == 1
     with pytest.raises(ValueError, match="seed losses"):
         _register.select_seed(L, F[:2])
+    with pytest.raises(ValueError, match="feature_window"):
+        _register.select_seed(L, F, -0.01)

@@ -248,6 +248,8 @@ def select_seed(losses, feature_losses, window: float = 0.05) -> int:
     L, F = np.asarray(losses, np.float64), np.asarray(feature_losses, np.float64)
     if L.shape != F.shape or L.ndim != 1 or L.size == 0:
         raise ValueError(f"seed losses: expected two equal-length 1-D arrays, got {L.shape} and {F.shape}")
+    if not window >= 0.0:
+        raise ValueError(f"feature_window: expected a fraction >= 0, got {window}")
     near = np.flatnonzero(L <= L.min() + window * abs(L.min()))
     return int(near[np.argmin(F[near])])
 
@@ -308,6 +310,8 @@ def register_object(
         ArtefactError: bad depth, extractor/model mismatch, or nothing above the table.
     """
     K = view.intrinsics
+    if not feature_window >= 0.0:
+        raise ValueError(f"feature_window: expected a fraction >= 0, got {feature_window}")
     if not np.any(view.depth > 0) or not np.all(np.isfinite(view.depth)):
         raise ArtefactError("robot view depth: expected finite metric depth with some valid (> 0) pixels")
     extractor = model_extractor(model, extractor)
