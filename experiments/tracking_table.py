@@ -9,8 +9,8 @@ For each object: make the studio scan + demo, build the ObjectModel from the sca
         so one process per object (`--objects X`) and a last run over them all writes the full table)
     python -m experiments.tracking_table --size pipeline --frames 0 --name tracking_pipeline \
         --ablations "pipeline" "pipeline − hands" "pipeline − motion prior" "pipeline − both"
-    python -m experiments.tracking_table ... --track-set seed=1 --track-set slide_max_turn_deg=null
-        (TrackConfig fields set in every row, values as JSON; recorded as `track_overrides`)
+    python -m experiments.tracking_table ... --track-set seed=1 --track-set slide_max_turn_deg=null --track-set weights.support=1
+        (TrackConfig fields, or LossWeights fields as weights.X, set in every row, values as JSON; recorded as `track_overrides`)
 
 Mono-depth is the studio's relative-depth ORACLE and hand masks are the studio's ground truth;
 both are labelled in the table, as are the studio's 2D fingertips (the "+ hands" rows).
@@ -72,8 +72,11 @@ def row_config(ablation: str, quick: bool = False, overrides: dict | None = None
     opts = dict(ABLATIONS[ablation])
     hands = bool(opts.pop("hands", False))
     base = _PIPE.track_config() if opts.pop("pipeline", False) else TrackConfig()
-    opts.update(overrides or {})
-    return dataclasses.replace(base, **{"smooth_iters": 10 if quick else base.smooth_iters, **opts}), hands
+    overrides = dict(overrides or {})
+    weights = {k.removeprefix("weights."): overrides.pop(k) for k in list(overrides) if k.startswith("weights.")}
+    opts.update(overrides)
+    cfg = dataclasses.replace(base, **{"smooth_iters": 10 if quick else base.smooth_iters, **opts})
+    return (dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, **weights)) if weights else cfg), hands
 
 
 def run(objects: list[str], frames: int, quick: bool, work: Path, ablations: list[str], size: str = "default",
@@ -175,13 +178,14 @@ def main() -> None:
                    help="scan and build: default (48 views 320×240, BuildConfig()) or the `rsrd-jax demo` sizes")  # fmt: skip
     p.add_argument("--work", type=Path, default=Path("experiments/work/tracking"))
     p.add_argument("--track-set", action="append", default=[], metavar="FIELD=JSON",
-                   help="set a TrackConfig field in every row, e.g. slide_max_turn_deg=null (repeatable)")
+                   help="set a TrackConfig field (or weights.X, a LossWeights field) in every row, e.g. slide_max_turn_deg=null (repeatable)")
     a = p.parse_args()
     overrides = {}
     for item in a.track_set:
         field, sep, value = item.partition("=")
-        if not sep or field not in {f.name for f in dataclasses.fields(TrackConfig)}:
-            p.error(f"--track-set {item!r}: expected FIELD=JSON with FIELD a TrackConfig field")
+        known = {f.name for f in dataclasses.fields(TrackConfig)} | {f"weights.{f.name}" for f in dataclasses.fields(LossWeights)}
+        if not sep or field not in known:
+            p.error(f"--track-set {item!r}: expected FIELD=JSON with FIELD a TrackConfig field or weights.<LossWeights field>")
         try:
             overrides[field] = json.loads(value)
         except json.JSONDecodeError as e:

@@ -227,6 +227,10 @@ def test_tracking_table_pipeline_rows_are_the_pipelines_tracking():
     # `--track-set`: fields set on top of the row's
     over = row_config("pipeline", overrides={"seed": 1, "slide_max_turn_deg": None})
     assert over == (dataclasses.replace(pipe.track_config(), seed=1, slide_max_turn_deg=None), pipe.track_hands)
+    # a loss weight on top of the row's weights (the pipeline's motion prior and hand depth kept)
+    cfg, _ = row_config("pipeline", overrides={"weights.support": 1.0})
+    assert cfg.weights == dataclasses.replace(pipe.track_config().weights, support=1.0)
+    assert row_config("no ARAP", overrides={"weights.support": 1.0})[0].weights == LossWeights(arap=0.0, support=1.0)
 
 
 def test_tracking_table_reports_the_initialisations_compile_time_where_recorded():
