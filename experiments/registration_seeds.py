@@ -38,6 +38,8 @@ from rsrd_jax.plan import read_robot_object_pose  # noqa: E402
 from rsrd_jax.studio import StudioConfig, list_objects, make_object  # noqa: E402
 from rsrd_jax.track import read_robot_view, register_object, registration_error, select_seed  # noqa: E402
 
+from experiments.robot_trials import table_yaws  # noqa: E402
+
 FLIP_DEG = 10.0
 """A seed whose rotation error exceeds this is a flip (the pipeline's Init tolerance)."""
 WINDOWS = (0.005, 0.02, 0.05, 0.1)
@@ -68,8 +70,7 @@ def register_object_at_yaws(name: str, work: Path, cfg: PipelineConfig, yaws: in
     yaw0 = float(json.loads((studio / "object.json").read_text())["products"]["robot_view"]["yaw_deg"])
     init = cfg.register_config()
     rows = []
-    for k in range(yaws):
-        yaw = (yaw0 + 360.0 * k / yaws + 180.0) % 360.0 - 180.0  # as experiments.robot_trials
+    for k, yaw in enumerate(table_yaws(yaw0, yaws)):
         view_dir = studio if k == 0 else odir / f"yaw{k}"
         if k:
             make_object(name, view_dir, StudioConfig(seed=cfg.seed, robot_object_yaw_deg=yaw, parts=("robot_view",)),

@@ -53,6 +53,12 @@ def trial_studio(base: Path, out: Path, name: str, seed: int, yaw_deg: float) ->
     return out
 
 
+def table_yaws(yaw0: float, yaws: int) -> list[float]:
+    """The trials' `yaws` table orientations (degrees in [-180, 180)): evenly over 360° from the
+    studio's robot-view yaw `yaw0` (trial 0)."""
+    return [(yaw0 + 360.0 * k / yaws + 180.0) % 360.0 - 180.0 for k in range(yaws)]
+
+
 def first_failure(stages: dict) -> str | None:
     for k in STAGES:
         if not stages.get(k):
@@ -93,8 +99,7 @@ def run(objects: list[str], yaws: int, cfg: PipelineConfig, work: Path, resume: 
         demo_yaw, yaw0 = float(products["demo"]["yaw_deg"]), float(products["robot_view"]["yaw_deg"])
         wrap = lambda x: (x + 180.0) % 360.0 - 180.0  # noqa: E731
         trials = [dict(yaw_offset_deg=wrap(yaw0 - demo_yaw), **_trial(base))]
-        for k in range(1, yaws):
-            yaw = wrap(yaw0 + 360.0 * k / yaws)
+        for k, yaw in enumerate(table_yaws(yaw0, yaws)[1:], 1):
             off = wrap(yaw - demo_yaw)
             tdir = odir / f"yaw{k}"
             sd = trial_studio(studio, tdir / "studio", name, cfg.seed, yaw)

@@ -131,6 +131,18 @@ def test_robot_trial_rates_are_cumulative():
     assert "| a | 2/2 | 2/2 | 1/2 | 1/2 | 1/2 |" in markdown(res)
 
 
+def test_robot_trials_table_yaws_cover_the_circle_from_the_studio_yaw():
+    """The trials' orientations (shared with experiments.registration_seeds): trial 0 at the
+    studio's yaw, then evenly over 360°, wrapped into [-180, 180)."""
+    from experiments.robot_trials import table_yaws
+
+    y = np.asarray(table_yaws(-149.17, 10))
+    assert y[0] == pytest.approx(-149.17) and np.all((y >= -180.0) & (y < 180.0))
+    steps = np.diff(np.unwrap(np.deg2rad(y)))
+    np.testing.assert_allclose(np.rad2deg(steps), 36.0, atol=1e-9)
+    assert table_yaws(179.0, 2) == pytest.approx([179.0, -1.0])
+
+
 def test_robot_trials_merge_takes_each_object_from_the_last_run_that_has_it(tmp_path):
     """`--merge`: one table over several runs' JSONs; an object in two files comes from the later
     one; totals are recomputed over the merged trials; the sources are listed."""
