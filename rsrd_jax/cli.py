@@ -274,6 +274,9 @@ def cmd_plan(a: argparse.Namespace) -> int:
     if (out / "plan.npz").exists() and not a.overwrite:
         print(f"error: {out / 'plan.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
+    if not all(np.isfinite(a.end_slack)) or min(a.end_slack) < 0:
+        print(f"error: --end-slack {a.end_slack}: expected degrees and mm ≥ 0", file=sys.stderr)
+        return 2
     hands = hand_parts = hand_points = None
     mesh_points = None
     if a.studio_gt:
@@ -329,6 +332,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         hand_tolerance=a.hand_tolerance, approach_steps=a.approach_steps, max_candidates=a.max_candidates,
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
+        end_slack_deg=None if a.no_end_slack else a.end_slack[0], end_slack_m=a.end_slack[1] / 1000.0,
     )  # fmt: skip
     if a.square_grasps:
         cfg = cfg.with_square_grasps(cone_deg=a.square_cone)
@@ -583,6 +587,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--approach-clearance", type=_clearance, nargs="+", default=[None, 0.01], metavar="M|open",
                     help="finger openings tried for the approach, widest first: m per finger beyond the grasp's "
                          "half-width, or 'open' (fully open); the widest collision-free one is used")  # fmt: skip
+    pl.add_argument("--end-slack", type=float, nargs=2, default=[10.0, 15.0], metavar=("DEG", "MM"),
+                    help="when nothing follows the whole demo, end the motion early, every part within DEG / MM of "
+                         "its final pose (PlanConfig.end_slack_deg, end_slack_m)")  # fmt: skip
+    pl.add_argument("--no-end-slack", action="store_true", help="follow the whole demo or fail")
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")

@@ -1114,3 +1114,75 @@ def test_a_free_parts_pinches_are_sampled_within_the_free_cone(robot, monkeypatc
         off.append(np.rad2deg(np.arccos(np.clip(np.abs(R[:, :, 0]).max(axis=1), -1, 1))).max())  # from a face normal
     # (the same seed and config otherwise: without the narrower cone both would be the same set)
     assert max(off[:2]) <= 15.0 + 0.5 and max(off[2:]) > max(off[:2]) + 2.0, off
+
+
+def test_a_motion_ending_where_no_gripper_fits_ends_within_the_slack(robot):
+    """A cube slides and lifts (``_trajectory``) until it sits under a still plate 1 cm above its
+    top: over the last frame every top-down grasp meets the plate (sunglasses' folded arm, 7 mm
+    behind the frame). The whole demo has no plan; with the end slack the motion ends at frame 9
+    of 11, the earliest frame within the slack's half (frame 10) still colliding. Checked: the
+    slack against the trajectory computed by hand, the robot's TCP on the held pose (FK)."""
+    g = np.stack(np.meshgrid(np.linspace(0.07, 0.17, 26), np.linspace(-0.06, 0.06, 25)), -1).reshape(-1, 2)
+    plate = np.concatenate([g, np.full((len(g), 1), 0.175)], 1)  # the cube's top ends at 0.165
+    c = plate.mean(0)
+    traj = _trajectory()
+    still = np.repeat(np.asarray([[1.0, 0, 0, 0, *c]]), len(traj), 0)[:, None]
+    T = np.concatenate([still, traj], 1)
+    args = (robot, [plate - c, _cube(0.015)], T, T_ROBOT_OBJ)
+    cfg = dataclasses.replace(CFG, parts=(1,))
+    grasps = {1: _grasps(8, 0, 0.03)}
+    whole = plan_robot(*args, grasps=grasps, config=dataclasses.replace(cfg, end_slack_deg=None))
+    assert whole.result == PlanResult.collision and "end_slack" not in whole.info
+    plan = plan_robot(*args, grasps=grasps, config=cfg)
+    assert plan.success, plan.message
+    es = plan.info["end_slack"]
+    assert es["frame"] == 9 and es["whole_demo"] == "collision"
+    assert [(a["frame"], a["result"]) for a in es["attempts"]] == [(10, "collision"), (9, "success")]
+    # frame 9 of 0..11: 2/11 of the 20° turn and of the (6, 0, 3) cm move before the end
+    assert es["attempts"][1]["rotation_deg"] == pytest.approx(20 * 2 / 11, abs=0.01)
+    assert es["attempts"][1]["position_mm"] == pytest.approx(1000 * np.hypot(0.06, 0.03) * 2 / 11, abs=0.01)
+    assert "ends at frame 9 of 11" in plan.message
+    # the robot holds the part at frame 9's pose from there on
+    assert plan.keyframe_indices[-1] == 11
+    T_tgt = (jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[9, 0], jnp.float32))
+             @ jaxlie.SE3(jnp.asarray(plan.T_part_grasp[0], jnp.float32)))  # fmt: skip
+    tcp = tcp_poses(robot, jnp.asarray(plan.q_video[9:], jnp.float32))[:, 0]
+    err = np.linalg.norm(np.asarray(tcp[:, 4:] - T_tgt.translation()), axis=-1)
+    assert err.max() < CFG.position_tolerance
+    # no slack big enough: the original failure, with the attempts
+    tight = plan_robot(*args, grasps=grasps, config=dataclasses.replace(cfg, end_slack_deg=1.0))
+    assert tight.result == PlanResult.collision and tight.info["end_slack"]["frame"] is None
+
+
+def test_end_frame_is_the_earliest_frame_after_which_all_stay_within_the_slack():
+    """:func:`end_frame` against a brute-force reading of its rule on random deviations, and
+    :func:`end_deviation` against numpy on a turning, sliding part beside a still one."""
+    from rsrd_jax.plan._search import end_deviation, end_frame
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        n = int(rng.integers(1, 12))
+        rot, pos = rng.uniform(0, 0.3, n), rng.uniform(0, 0.03, n)
+        rot[-1] = pos[-1] = 0.0
+        mr, mp = rng.uniform(0, 0.3), rng.uniform(0, 0.03)
+        brute = min(f for f in range(n) if all(rot[t] <= mr and pos[t] <= mp for t in range(f, n)))
+        assert end_frame(rot, pos, mr, mp) == brute
+    traj = _trajectory()
+    still = np.repeat(traj[:1], len(traj), 0)
+    rot, pos = end_deviation(np.concatenate([still, traj], 1))
+    s = 1 - np.linspace(0, 1, len(traj))
+    np.testing.assert_allclose(rot, np.deg2rad(20) * s, atol=1e-5)
+    np.testing.assert_allclose(pos, np.hypot(0.06, 0.03) * s, atol=1e-6)
+
+
+@pytest.mark.parametrize("slack", [["-1", "15"], ["10", "nan"]])
+def test_cli_plan_refuses_a_negative_or_nan_end_slack(tmp_path, capsys, slack):
+    from rsrd_jax.cli import main
+
+    rc = main(["plan", "--studio-gt", str(tmp_path / "nope"), "--out", str(tmp_path / "plan"), "--end-slack", *slack])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--end-slack" in err, err
+    assert not (tmp_path / "plan").exists()
+    with pytest.raises(ValueError, match="end_slack"):
+        plan_robot(load_yumi(), [_cube()], _trajectory(), T_ROBOT_OBJ, config=PlanConfig(end_slack_deg=float(slack[0]),
+                                                                                        end_slack_m=float(slack[1]) / 1000))

@@ -9,6 +9,7 @@ over a fixed-size chunk of candidates (padded), so each chunk size compiles once
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Sequence
 from typing import Literal
 
@@ -256,6 +257,19 @@ class PlanConfig(eqx.Module):
     and ended 20.7° off the demo; with this rule alone the next grasp, across the thickness but 24°
     off the faces, turned the plug as it closed (25.3° off); with ``free_cone_deg`` too the pinch
     across the thickness carried the roll and every stage passed. None = off."""
+    end_slack_deg: float | None = 10.0
+    """When no plan follows the whole demo, the motion may end early: the parts are held at an
+    earlier frame from which every part stays within ``end_slack_deg`` and ``end_slack_m`` of its
+    final pose (object frame, at its rest centroid), and the search runs again on that trajectory
+    (the latest such frames first, at ``end_slack_fractions`` of the slack). A demo may end with a
+    part where no gripper fits: tracked studio sunglasses fold an arm to 7 mm behind the frame,
+    and every grasp on the arm meets the frame over the last 12 of 50 keyframes, 8° before the
+    end (the robot trials score the final pose within 15 mm / 15°). The plan's ``info["end_slack"]``
+    records the frame and the slack used. None = off (the whole demo or no plan)."""
+    end_slack_m: float = 0.015
+    """See ``end_slack_deg`` (m)."""
+    end_slack_fractions: tuple[float, ...] = (0.5, 1.0)
+    """See ``end_slack_deg``: one attempt per fraction of the slack, in this order."""
     mesh_config: MeshConfig = MeshConfig()
     """Part meshing when grasps are not given."""
     rank_config: RankConfig = RankConfig()
@@ -701,6 +715,8 @@ def plan_robot(
     grasp) that must track and be collision-free, the open pads clear of the grasped part too
     until the grasp pose (``approach_pads_clear_part``). The first part (pair) with a feasible plan wins;
     within it, the lowest cost.
+    When nothing follows the whole demo, the search runs again with the motion ending early,
+    within ``end_slack_deg`` / ``end_slack_m`` of every part's final pose (``info["end_slack"]``).
 
     Args:
         robot: from :func:`rsrd_jax.robot.load_yumi`.
@@ -735,6 +751,10 @@ def plan_robot(
     """
     if config.bimanual not in (True, False, "auto"):
         raise ValueError(f"config.bimanual must be True, False or 'auto', got {config.bimanual!r}")
+    slack = (config.end_slack_deg if config.end_slack_deg is not None else 0.0, config.end_slack_m)
+    if not all(np.isfinite(slack)) or min(slack) < 0 or not all(0 < s <= 1 for s in config.end_slack_fractions):
+        raise ValueError(f"config.end_slack_deg / end_slack_m: expected ≥ 0 (got {config.end_slack_deg}, "
+                         f"{config.end_slack_m}); end_slack_fractions in (0, 1] (got {config.end_slack_fractions})")
     if hand_points is not None:
         hand_points = [(int(k), np.asarray(x, np.float64).reshape(-1)) for k, x in hand_points]
         bad = [(k, x) for k, x in hand_points if not 0 <= k < len(part_points) or x.shape != (3,) or not np.all(np.isfinite(x))]
@@ -744,6 +764,58 @@ def plan_robot(
         free_parts = tuple(int(k) for k in free_parts)
         if any(not 0 <= k < len(part_points) for k in free_parts):
             raise ValueError(f"free_parts {free_parts} out of range for {len(part_points)} parts")
+    plan = _plan_demo(robot, part_points, T_obj_part, T_robot_obj, hands, grasps, config, mesh_points, hand_parts,
+                      hand_points, free_parts)  # fmt: skip
+    if plan.success or config.end_slack_deg is None:
+        return plan
+    T_obj_part = np.asarray(T_obj_part, np.float64)
+    rot, pos = end_deviation(T_obj_part)
+    tried: list[dict] = []
+    for s in config.end_slack_fractions:
+        f = end_frame(rot, pos, s * np.deg2rad(config.end_slack_deg), s * config.end_slack_m)
+        if f >= len(T_obj_part) - 1 or any(t["frame"] == f for t in tried):
+            continue
+        held = T_obj_part.copy()
+        held[f + 1 :] = held[f]
+        short = _plan_demo(robot, part_points, held, T_robot_obj, hands, grasps, config, mesh_points, hand_parts,
+                           hand_points, free_parts)  # fmt: skip
+        tried.append({"frame": f, "rotation_deg": round(float(np.rad2deg(rot[f])), 2),
+                      "position_mm": round(float(1000 * pos[f]), 2), "result": short.result_name, "message": short.message})  # fmt: skip
+        if short.success:
+            short.info["end_slack"] = {"frame": f, "num_frames": len(T_obj_part), "whole_demo": plan.result_name,
+                                       "whole_demo_message": plan.message, "attempts": tried}  # fmt: skip
+            t = tried[-1]
+            msg = (f"{short.message}; the motion ends at frame {f} of {len(T_obj_part) - 1}, parts within "
+                   f"{t['rotation_deg']:.1f}° / {t['position_mm']:.1f} mm of the demo's end (the whole demo: {plan.result_name})")
+            with warnings.catch_warnings():  # info["config"] holds the config's float32 weights (static, by design)
+                warnings.filterwarnings("ignore", "A JAX array is being set as static")
+                return dataclasses.replace(short, message=msg)
+    plan.info["end_slack"] = {"frame": None, "num_frames": len(T_obj_part), "attempts": tried}
+    return plan
+
+
+def end_deviation(T_obj_part: Float[np.ndarray, "t p 7"]) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame the largest rotation (rad) and translation (m) of any part from its pose on the
+    last frame (object frame; part frames at the rest centroids): (T,), (T,)."""
+    T = jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32))
+    last = jaxlie.SE3(jnp.broadcast_to(T.wxyz_xyz[-1:], T.wxyz_xyz.shape))
+    d = last.inverse() @ T
+    rot = np.linalg.norm(np.asarray(d.rotation().log(), np.float64), axis=-1)
+    pos = np.linalg.norm(np.asarray(T.translation() - last.translation(), np.float64), axis=-1)
+    return rot.max(axis=1), pos.max(axis=1)
+
+
+def end_frame(rot: np.ndarray, pos: np.ndarray, max_rot: float, max_pos: float) -> int:
+    """The earliest frame from which every later frame's deviation (:func:`end_deviation`) stays
+    within ``max_rot`` (rad) and ``max_pos`` (m)."""
+    out = (rot > max_rot) | (pos > max_pos)
+    return int(np.flatnonzero(out)[-1] + 1) if out.any() else 0
+
+
+def _plan_demo(robot, part_points, T_obj_part, T_robot_obj, hands, grasps, config: PlanConfig, mesh_points, hand_parts,
+               hand_points, free_parts) -> RobotPlan:
+    """:func:`plan_robot` on the whole given trajectory: the ``bimanual="auto"`` decision and
+    its single-arm fallback."""
     args = (robot, part_points, T_obj_part, T_robot_obj, hands, grasps)
     if config.bimanual != "auto":
         plan = _plan_robot(*args, config, mesh_points, hand_points, free_parts)
