@@ -267,8 +267,9 @@ def main(argv=None) -> int:
                          "if made with this configuration); recorded per object as 'reused'")  # fmt: skip
     ap.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
-    ap.add_argument("--hand-grasps", action="store_true",
-                    help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps)")
+    ap.add_argument("--hand-grasps", action=argparse.BooleanOptionalAction, default=PipelineConfig.plan_hand_grasps,
+                    help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps; on "
+                         "by default)")  # fmt: skip
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--scan-surface", action="store_true",

@@ -969,6 +969,10 @@ def test_grasps_near_the_hand_hold_the_part_where_the_demonstrator_did(robot):
     plan = plan_robot(robot, [pts], traj, T_robot_obj, config=cfg, hand_points=[(0, hand)])
     assert plan.success, (plan.message, plan.info["rejections"])
     assert plan.info["chosen"]["hand_grasp"] == [True, False]
+    assert plan.info["chosen"]["tier"] == 1  # used because no best-scored grasp (tier 0) survived
+    ranked = plan_robot(robot, [pts], traj, T_robot_obj, config=dataclasses.replace(cfg, hand_grasp_tier=False),
+                        hand_points=[(0, hand)])  # ranked with the best-scored ones: the same plan, in tier 0
+    assert ranked.info["chosen"]["tier"] == 0 and ranked.grasp_index.tolist() == plan.grasp_index.tolist()
     assert plan.info["hand_points_mm"] == [[0, [round(1e3 * float(v), 2) for v in hand]]]
     # the chosen grasp (backed off by its seating depth along its approach axis) pinches the post
     depth = plan.info["chosen"]["grasp_depth"][0]

@@ -223,7 +223,7 @@ class PlanConfig(eqx.Module):
     """A third sampling of a part the demonstrator held (``plan_robot(hand_points=...)``): first
     contacts only within ``hand_grasp_radius`` of where the hand held it, best nearest it
     (:func:`rsrd_jax.grasp.sample_antipodal_grasps` with ``near``). Merged after the best-scored
-    grasps and ranked with them (before the spread set). The centre-scored grasps of a part
+    grasps, before the spread set, in a tier of their own (``hand_grasp_tier``). The centre-scored grasps of a part
     reach only where its surface is large: on the tracked toy_drawer (session 30) the drawer's
     centroid lies on its front panel, its best grasps 36 mm (mean) from the knob the hand
     pulled, and 20 of 4464 valid grasps seated; None = off."""
@@ -231,13 +231,22 @@ class PlanConfig(eqx.Module):
     """A fourth sampling of each part: level pinches across its footprint seen from above,
     approached from above (:func:`rsrd_jax.grasp.sample_topdown_grasps`, the table's normal taken
     in the part's frame at the first keyframe), merged after the spread set and used only when no
-    grasp of the first three sets survives (tier 2). The mesh sampler's grasps on a part lying
+    grasp of the first three sets survives (tier 3). The mesh sampler's grasps on a part lying
     flat pinch across its thickness with a side approach through the table: on the tracked
     studio scissors none seats at any depth; with these all 10 table orientations of the robot
     trials plan and 6 succeed in simulation, led_light 9 and 3
     (``experiments/results/robot_trials_s41.md``); None = off."""
     hand_grasp_radius: float = 0.02
     """Radius (m) around each hand's point within which ``hand_grasp_config`` samples."""
+    hand_grasp_tier: bool = True
+    """The grasps near the hands (``hand_grasp_config``) are used only when no best-scored grasp
+    survives (a tier between those and the spread set; ``info["chosen"]["hand_grasp"]``). False
+    (sessions ≤ 45): ranked with the best-scored ones by cost. Measured on this machine's robot-trial
+    builds (session 46): on led_light no best-scored grasp of the panel seats and the top-down
+    pinches of its tab (tier 3) slip or shut beside it (0/10 end to end); pinches near the
+    demonstrator's hand on the tab pass at 5 of the 10 table orientations. Ranked with the
+    best-scored ones, they won on cost in 2 of the stapler's first 4 trials, pinching the arm's
+    end, which slipped 24–26° (limit 20°)."""
     free_cone_deg: float | None = 15.0
     """The antipodal samplings of a free part (``plan_robot(free_parts=)``) accept only contacts
     whose normals lie within this angle of the grasp axis (``GraspConfig.friction_angle_deg``,
@@ -281,7 +290,7 @@ class PlanConfig(eqx.Module):
         """This config with square pinches preferred: its best-scored and near-hand grasp
         samplings take contact normals averaged over ``normal_radius`` (m, ``GraspConfig.
         normal_radius``) and accept only contacts within ``cone_deg`` of the axis, so that a pinch
-        does not turn a round or tilted part as the jaw closes; the spread set (tier 1, used only
+        does not turn a round or tilted part as the jaw closes; the spread set (tier 2, used only
         when none of those survives) keeps RSRD's rule (single-face normals, 45°) for parts held
         at a rim (a lid's lip, a panel's edge)."""
         if not 0.0 < cone_deg < 90.0:  # also refuses NaN
@@ -980,6 +989,10 @@ def _plan_robot(
             twist_rows[k] = _grasp_twist(turns[k], np.asarray(get_grasps(k).T_part_grasp)) > np.deg2rad(config.free_twist_deg)
         return twist_rows[k][i]
 
+    def tier_starts(k: int) -> tuple[int, ...]:
+        """First rows of part k's tiers 1–3 (:func:`_tier`): near the hands, spread, top-down."""
+        return (hand_row[k] if config.hand_grasp_tier else spread_row[k], spread_row[k], topdown_row[k])
+
     hand = hand_geometry(robot_lite, coll.proxy)
     seat_cache: dict[int, tuple[PartGrasps, np.ndarray, np.ndarray]] = {}
 
@@ -1018,7 +1031,9 @@ def _plan_robot(
         # joints / infinite errors and are counted at their own stage)
         sel = np.nonzero(valid & seated)[0]
         # best score first, the top-down set after every mesh grasp (so it never displaces one)
-        late = sel >= topdown_row.get(k, np.iinfo(np.int64).max)
+        late = (sel >= topdown_row.get(k, np.iinfo(np.int64).max)).astype(int) * 2
+        if config.hand_grasp_tier:  # under the cap too, the grasps near the hands after the others
+            late += (sel >= hand_row.get(k, np.iinfo(np.int64).max)) & (sel < spread_row.get(k, 0))
         sel = np.sort(sel[np.lexsort((-np.asarray(g.score)[sel], twisting(k, sel), late))][: config.max_candidates])
         b = _Batch(q=np.full((n, K, 16), np.nan, np.float32), cost=np.full(n, np.inf, np.float32),
                    lm_result=np.zeros(n, np.int32), iterations=np.zeros(n, np.int32),
@@ -1074,7 +1089,7 @@ def _plan_robot(
                 last_stage = _furthest(last_stage, stage)
                 continue
             cand = _combine(per_arm, params, robot_lite, coll, T_robot_part, config, acceleration, open_grip, att, info,
-                            {k: (spread_row[k], topdown_row[k]) for k in spread_row}, twisting)
+                            {k: tier_starts(k) for k in spread_row}, twisting)
             if cand is None:
                 last_stage = _furthest(last_stage, att.get("failed_stage", "collision"))
                 continue
@@ -1103,11 +1118,14 @@ def _plan_robot(
                            "no grasp candidate tracked the trajectory within tolerance (unreachable)"))
         return _failure(res, msg, T_robot_obj, idx, info)
     info["chosen"] = {k: v for k, v in best.items() if k in ("parts", "grasp_index", "cost", "lm_result", "iterations")}
-    info["chosen"]["spread_grasp"] = best["tier"] == 1
+    rows = [(int(k), int(i)) for k, i in zip(best["part"], best["grasp_index_arr"]) if k >= 0]
+    big = np.iinfo(np.int64).max  # (grasps given: no later sets)
+    info["chosen"]["spread_grasp"] = any(spread_row.get(k, big) <= i < topdown_row.get(k, big) for k, i in rows)
     info["chosen"]["hand_grasp"] = [bool(k >= 0 and hand_row.get(int(k), np.inf) <= i < spread_row.get(int(k), -1))
                                     for k, i in zip(best["part"], best["grasp_index_arr"])]  # fmt: skip
-    info["chosen"]["topdown_grasp"] = best["tier"] == 2
+    info["chosen"]["topdown_grasp"] = any(i >= topdown_row.get(k, big) for k, i in rows)
     info["chosen"]["twisting_grasp"] = bool(best["twist"])
+    info["chosen"]["tier"] = int(best["tier"])  # 0 best-scored, 1 near the hands, 2 spread, 3 top-down
     info["hand_points_mm"] = [[int(k), [round(1e3 * float(v), 2) for v in x]] for k, x in (hand_points or [])]
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
                                      for k, i in zip(best["part"], best["grasp_index_arr"])]
@@ -1181,9 +1199,10 @@ def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):
 def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, acceleration, open_grip, att, info,
              tier_rows: dict[int, tuple[int, ...]], twisting=None):
     """Single arm: survivors ordered by (tier, twist, cost). Bimanual: top-k × top-k joint solves.
-    Tier t = the number of ``tier_rows[k]`` (first rows of the spread set, then of the top-down
-    set) at or before the grasp's row: a spread grasp is used only after every best-scored grasp
-    (tier 0), a top-down grasp only after both. ``twisting(k, rows)``: grasps that must turn a
+    Tier t = the number of ``tier_rows[k]`` (first rows of the grasps near the hands, of the spread
+    set, of the top-down set) at or before the grasp's row: a grasp near a hand (tier 1) is used
+    only after every best-scored grasp (tier 0), a spread one (2) after both, a top-down one (3)
+    after all. ``twisting(k, rows)``: grasps that must turn a
     free part about their closing axis, ranked after the others of their tier."""
     tier = lambda k, i: _tier(tier_rows, k, i)  # noqa: E731
     twist = twisting or (lambda k, i: np.zeros(np.shape(i), bool))
@@ -1270,7 +1289,7 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
     """Approach segments for the best candidates (batched; ``approach_candidates`` per tier, so a
     spread grasp still gets its approach when every best-scored one fails); the first that passes
     wins."""
-    cands = [c for t in range(3) for c in [c for c in cands if c["tier"] == t][: cfg.approach_candidates]]
+    cands = [c for t in range(4) for c in [c for c in cands if c["tier"] == t][: cfg.approach_candidates]]
     A = max(2, cfg.approach_steps)
     n = len(cands)
     s = np.linspace(0.0, 1.0, A)
