@@ -268,7 +268,7 @@ def main(argv=None) -> int:
     ap.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' extents (PipelineConfig.plan_extent_meshes)")
     ap.add_argument("--hand-grasps", action=argparse.BooleanOptionalAction, default=PipelineConfig.plan_hand_grasps,
-                    help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps; on "
+                    help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps; off "
                          "by default)")  # fmt: skip
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")

@@ -540,10 +540,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "parts.scan_surface_points), not the Gaussian centres")  # fmt: skip
     pl.add_argument("--extent-meshes", action="store_true",
                     help="grasp meshes from the Gaussians' ±1σ extents, not their centres (thin parts)")
-    pl.add_argument("--hand-grasps", action=argparse.BooleanOptionalAction, default=True,
+    pl.add_argument("--hand-grasps", action="store_true",
                     help="also sample grasps where the tracker anchored each hand on its part (trajectory.json's "
                          "hand_anchors; PlanConfig.hand_grasp_config), tried when no best-scored grasp survives "
-                         "(on by default, as in the pipeline)")  # fmt: skip
+                         "(PlanConfig.hand_grasp_tier)")  # fmt: skip
     pl.add_argument("--keyframes", type=int, default=50, help="keyframes of the joint trajectory")
     pl.add_argument("--bimanual", choices=("auto", "yes", "no"), default="auto",
                     help="plan both arms on a ranked (left, right) part pair: yes, no, or auto (when both of the "

@@ -120,11 +120,13 @@ class PipelineConfig:
     6/10 plans are found (0/10 on the centres) but every one pinches the panel's tab with the
     fingertips (backed off 19 mm), the approach moves the lamp 6-8 mm, and the jaw shuts 10-14 mm
     from the panel: 0/10 Grasp."""
-    plan_hand_grasps: bool = True
+    plan_hand_grasps: bool = False
     """Also sample grasps near where the tracker anchored each hand (`anchored_hand_points`,
     `PlanConfig.hand_grasp_config`), tried when no best-scored grasp survives
-    (`PlanConfig.hand_grasp_tier`). On by default since session 46 (led_light 0 → 5/10 on that
-    session's machine)."""
+    (`PlanConfig.hand_grasp_tier`). Off: on session 46's machine (robot-trial builds, 10 table
+    orientations) led_light 0 → 5/10 with them (pinches of the panel's tab where the hand held it,
+    instead of top-down pinches that slip or shut beside it), but scissors 5 → 0/10 (pinches near
+    the hand on the thin ring shut on nothing, instead of the top-down pinches)."""
     plan_grasp_keyframe_weight: float = 3.0
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
     plan_square_grasps: bool = True
