@@ -241,8 +241,8 @@ class PlanConfig(eqx.Module):
     hand_grasp_tier: bool = True
     """The grasps near the hands (``hand_grasp_config``) are used only when no best-scored grasp
     survives (a tier between those and the spread set; ``info["chosen"]["hand_grasp"]``). False
-    (sessions ≤ 45): ranked with the best-scored ones by cost. Measured on this machine's robot-trial
-    builds (session 46): on led_light no best-scored grasp of the panel seats and the top-down
+    (sessions ≤ 45): ranked with the best-scored ones by cost. Measured on session 46's machine
+    (its robot-trial builds): on led_light no best-scored grasp of the panel seats and the top-down
     pinches of its tab (tier 3) slip or shut beside it (0/10 end to end); pinches near the
     demonstrator's hand on the tab pass at 5 of the 10 table orientations. Ranked with the
     best-scored ones, they won on cost in 2 of the stapler's first 4 trials, pinching the arm's
@@ -806,11 +806,10 @@ def plan_robot(
 def end_deviation(T_obj_part: Float[np.ndarray, "t p 7"]) -> tuple[np.ndarray, np.ndarray]:
     """Per frame the largest rotation (rad) and translation (m) of any part from its pose on the
     last frame (object frame; part frames at the rest centroids): (T,), (T,)."""
-    T = jaxlie.SE3(jnp.asarray(T_obj_part, jnp.float32))
-    last = jaxlie.SE3(jnp.broadcast_to(T.wxyz_xyz[-1:], T.wxyz_xyz.shape))
-    d = last.inverse() @ T
-    rot = np.linalg.norm(np.asarray(d.rotation().log(), np.float64), axis=-1)
-    pos = np.linalg.norm(np.asarray(T.translation() - last.translation(), np.float64), axis=-1)
+    R = jaxlie.SO3(jnp.asarray(T_obj_part[..., :4], jnp.float32))
+    turn = jaxlie.SO3(jnp.broadcast_to(R.wxyz[-1:], R.wxyz.shape)).inverse() @ R
+    rot = np.linalg.norm(np.asarray(turn.log(), np.float64), axis=-1)
+    pos = np.linalg.norm(np.asarray(T_obj_part[..., 4:], np.float64) - np.asarray(T_obj_part[-1:, :, 4:], np.float64), axis=-1)
     return rot.max(axis=1), pos.max(axis=1)
 
 
