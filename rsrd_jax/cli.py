@@ -277,6 +277,9 @@ def cmd_plan(a: argparse.Namespace) -> int:
     if not all(np.isfinite(a.end_slack)) or min(a.end_slack) < 0:
         print(f"error: --end-slack {a.end_slack}: expected degrees and mm ≥ 0", file=sys.stderr)
         return 2
+    if not 0.0 <= a.short_lever < 1.0:
+        print(f"error: --short-lever {a.short_lever}: expected a fraction in [0, 1) (0: off)", file=sys.stderr)
+        return 2
     hands = hand_parts = hand_points = None
     mesh_points = None
     if a.studio_gt:
@@ -333,6 +336,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
         end_slack_deg=None if a.no_end_slack else a.end_slack[0], end_slack_m=a.end_slack[1] / 1000.0,
+        short_lever_fraction=a.short_lever or None,
     )  # fmt: skip
     if a.square_grasps:
         cfg = cfg.with_square_grasps(cone_deg=a.square_cone)
@@ -592,6 +596,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="when nothing follows the whole demo, end the motion early, every part within DEG / MM of "
                          "its final pose (PlanConfig.end_slack_deg, end_slack_m)")  # fmt: skip
     pl.add_argument("--no-end-slack", action="store_true", help="follow the whole demo or fail")
+    pl.add_argument("--short-lever", type=float, default=0.4, metavar="FRACTION",
+                    help="grasps on a turning jointed part closer to its turn axis than FRACTION × its farthest point "
+                         "rank after the others of their tier (PlanConfig.short_lever_fraction; 0: off)")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")

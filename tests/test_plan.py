@@ -1026,6 +1026,40 @@ def test_grasp_twist_is_the_turn_about_the_closing_axis():
     np.testing.assert_allclose(_grasp_twist(turns, Tg), want, atol=1e-5)
 
 
+def test_short_lever_grasps_are_those_near_the_hinge():
+    """`_short_lever` against the known hinge: a bar (rest pose a random rotation and offset)
+    turning up to 30° about an axis nearly across it near its end; grasps (random frames, bar
+    frame) are flagged exactly when their distance from that line (numpy) is under 0.4 × the
+    bar's farthest point's; a part that turns 5° flags none."""
+    from rsrd_jax.plan._search import _short_lever
+
+    rng = np.random.default_rng(11)
+    R0 = Rotation.random(random_state=12)
+    x0 = rng.normal(scale=0.1, size=3)
+    u = R0.apply([0.1, 0.3, 1.0])  # nearly across the bar, through a point near its end
+    u /= np.linalg.norm(u)
+    c = R0.apply([-0.045, 0.004, 0.0]) + x0 + 0.2 * u
+    pts = np.c_[np.linspace(-0.05, 0.05, 41), np.zeros((41, 2))]  # the bar, its own frame
+
+    def poses(deg):
+        out = []
+        for a in np.deg2rad(deg):
+            Rh = Rotation.from_rotvec(a * u)
+            R, t = Rh * R0, Rh.apply(x0 - c) + c
+            out.append(np.r_[np.roll(R.as_quat(), 1), t])
+        return np.stack(out)
+
+    G = Rotation.random(40, random_state=13)
+    gx = np.c_[rng.uniform(-0.06, 0.06, 40), rng.normal(scale=0.01, size=(40, 2))]
+    Tg = np.concatenate([np.roll(G.as_quat(), 1, axis=1), gx], 1)
+    dist = lambda x: np.linalg.norm(np.cross(R0.apply(x) + x0 - c, u), axis=-1)  # noqa: E731
+    want = dist(gx) < 0.4 * dist(pts).max()
+    assert 5 < want.sum() < 35
+    got = _short_lever(poses([0.0, 10.0, 30.0, 20.0]), Tg, pts, 0.4, np.deg2rad(10.0))
+    np.testing.assert_array_equal(got, want)
+    assert not _short_lever(poses([0.0, 3.0, 5.0]), Tg, pts, 0.4, np.deg2rad(10.0)).any()
+
+
 def test_grasps_that_must_twist_a_free_part_rank_after_the_others(robot):
     """A free part (no joint holds it) turning 15° about its x axis: among top-down pinches rolled
     about the approach axis (closing axes at 0, 22.5, ..., 157.5° from x), the plan takes one
@@ -1050,6 +1084,42 @@ def test_grasps_that_must_twist_a_free_part_rank_after_the_others(robot):
     assert plan2.success and plan2.info["chosen"]["twisting_grasp"] is True
     with pytest.raises(ValueError, match="free_parts"):
         plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=cfg, free_parts=[1])
+
+
+def test_grasps_near_a_turning_parts_hinge_rank_after_the_others(robot):
+    """A bar turning 30° about a vertical axis through one end (a lid, a scissors blade): of
+    pinches across it near the hinge (lever 0.12 of the bar's farthest point) and at the free
+    end (0.88), the plan takes the cheapest near the hinge without the rule
+    (`short_lever_fraction` None) and one at the free end with it, reporting no short lever;
+    with only the pinches near the hinge it still plans, and says so."""
+    from rsrd_jax.plan._search import _short_lever
+
+    g = np.linspace(-0.06, 0.06, 25)
+    bar = np.stack(np.meshgrid(g, [-0.01, 0.01], [-0.01, 0.01]), -1).reshape(-1, 3)
+    hinge = np.array([0.06, 0.0, 0.12])
+    traj = []
+    for a in np.deg2rad(np.linspace(0.0, 30.0, 12)):
+        R = jaxlie.SO3.from_z_radians(float(a))
+        traj.append(jaxlie.SE3.from_rotation_and_translation(R, jnp.asarray(hinge) + R @ jnp.asarray(-hinge + [0, 0, 0.12])).wxyz_xyz)
+    traj = np.asarray(traj)[:, None]
+    T = np.asarray(_grasps(4, 0, width=0.02).T_part_grasp)
+    Tg = np.concatenate([np.concatenate([T[:, :4], T[:, 4:] + [x, 0.0, 0.0]], 1) for x in (-0.045, 0.045)])
+    both = PartGrasps(
+        T_part_grasp=jnp.asarray(Tg, jnp.float32), width=jnp.full((8,), 0.02), score=jnp.ones(8), valid=jnp.ones(8, bool),
+        base_index=jnp.arange(8), contacts=jnp.zeros((8, 2, 3)), base_valid=jnp.ones(8, bool), result=GraspResult.success,
+        num_hit=jnp.array(8), num_width_ok=jnp.array(8), num_antipodal=jnp.array(8),
+    )  # fmt: skip
+    assert _short_lever(traj[:, 0], Tg, bar, 0.4, np.deg2rad(10.0)).tolist() == [False] * 4 + [True] * 4
+    cfg = dataclasses.replace(CFG, max_candidates=8)
+    off = plan_robot(robot, [bar], traj, T_ROBOT_OBJ, grasps={0: both}, config=dataclasses.replace(cfg, short_lever_fraction=None))
+    assert off.success and off.grasp_index[0] >= 4, (off.message, off.grasp_index)
+    plan = plan_robot(robot, [bar], traj, T_ROBOT_OBJ, grasps={0: both}, config=cfg)
+    assert plan.success, (plan.message, plan.info)
+    assert plan.grasp_index[0] < 4 and plan.info["chosen"]["short_lever_grasp"] is False
+    assert plan.info["chosen"]["cost"] > off.info["chosen"]["cost"]
+    near = eqx_rows(both, [4, 5, 6, 7])
+    plan2 = plan_robot(robot, [bar], traj, T_ROBOT_OBJ, grasps={0: near}, config=cfg)
+    assert plan2.success and plan2.info["chosen"]["short_lever_grasp"] is True
 
 
 def eqx_rows(g: PartGrasps, rows) -> PartGrasps:
@@ -1177,6 +1247,18 @@ def test_end_frame_is_the_earliest_frame_after_which_all_stay_within_the_slack()
     s = 1 - np.linspace(0, 1, len(traj))
     np.testing.assert_allclose(rot, np.deg2rad(20) * s, atol=1e-5)
     np.testing.assert_allclose(pos, np.hypot(0.06, 0.03) * s, atol=1e-6)
+
+
+@pytest.mark.parametrize("lever", ["-0.1", "1", "nan"])
+def test_cli_plan_refuses_a_short_lever_outside_0_1(tmp_path, capsys, lever):
+    from rsrd_jax.cli import main
+
+    rc = main(["plan", "--studio-gt", str(tmp_path / "nope"), "--out", str(tmp_path / "plan"), "--short-lever", lever])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--short-lever" in err, err
+    assert not (tmp_path / "plan").exists()
+    with pytest.raises(ValueError, match="short_lever"):
+        plan_robot(load_yumi(), [_cube()], _trajectory(), T_ROBOT_OBJ, config=PlanConfig(short_lever_fraction=float(lever)))
 
 
 @pytest.mark.parametrize("slack", [["-1", "15"], ["10", "nan"]])

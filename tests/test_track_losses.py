@@ -510,7 +510,8 @@ def test_discover_joints_tries_only_the_slide_direction_the_pinch_track_fits_bes
     """nerf_gun's case on a bar: the hand pulls the bar 30 mm along its length (x); the stubbed
     first pass lags it, turning it 6° about a far point. With the hand's pinch track and no
     ratio test, every slide direction of the bar stays a candidate without `slide_hand_best`, and
-    only x with `slide_hand_best=1`."""
+    only x with `slide_hand_best=1`. The turn test (`slide_max_turn_deg`) leaves a part the pinch
+    track judges to the hand."""
     from rsrd_jax.geometry import Intrinsics, look_at, project_points
     from rsrd_jax.track import TrackConfig
     from rsrd_jax.track._dpm import Weights
@@ -545,6 +546,14 @@ def test_discover_joints_tries_only_the_slide_direction_the_pinch_track_fits_bes
     assert abs(best[0][3][0] @ [1.0, 0.0, 0.0]) > 0.99, best[0][3]
     px = np.asarray(info1["1"]["slide_hand_px"])
     assert px.min() < 1.0 < 3 * px.min() < np.sort(px)[1], px
+    # the turn test (toy_drawer's case: its first pass turned the pulled drawer 33°): under a 5°
+    # limit the 6° turn hinges the bar when no pinch track judges it, not when one does
+    tight = dataclasses.replace(cfg, slide_hand_best=1, slide_max_turn_deg=5.0)
+    _, info_t, _, cand_t, _ = _discover_joints(tm, neighbour, w, tight, jax.random.key(0), _stub_pass(T, held), up)
+    assert cand_t == [] and info_t["slide_candidates_turned"] == [1], info_t
+    _, info_h, _, cand_h, _ = _discover_joints(tm, neighbour, w, tight, jax.random.key(0), _stub_pass(T, held), up, hands)
+    assert [c[0] for c in cand_h] == [1] and "slide_candidates_turned" not in info_h, info_h
+    assert abs(cand_h[0][3][0] @ [1.0, 0.0, 0.0]) > 0.99, cand_h[0][3]
 
 
 @pytest.mark.parametrize("baseline", ["first", "joint"])

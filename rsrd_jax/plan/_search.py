@@ -266,6 +266,20 @@ class PlanConfig(eqx.Module):
     and ended 20.7° off the demo; with this rule alone the next grasp, across the thickness but 24°
     off the faces, turned the plug as it closed (25.3° off); with ``free_cone_deg`` too the pinch
     across the thickness carried the roll and every stage passed. None = off."""
+    short_lever_fraction: float | None = 0.4
+    """A grasp on a jointed part (not in ``free_parts``) that turns by at least ``short_lever_turn_deg`` whose distance from the
+    part's turn axis is under this fraction of the part's farthest point's ranks after the
+    other grasps of its tier (with the twisting ones): the hinge, not the plan, sets where a
+    hinged part goes, and the pinch point follows the tracked arc, whose centre is off by the
+    track's error; near the axis a few millimetres of path error are a wide turn of the part in
+    the jaw. The axis: the screw axis of the part's motion (object frame) from the first keyframe
+    to the one where it turned most. Measured on the studio scissors (session 46's machine, its
+    robot-trial build and track, 10 table orientations): the top-down pinches chosen by cost
+    held the blade's neck 29 mm from the pivot (0.35 of the blade's 84 mm) and let the blade turn
+    20.3–23.7° in the jaw (limit 20°) at 4 of 6 orientations, at 39–44 mm (0.46–0.52) it turned
+    7.4–8.3°; with this rule 8 of 10 trials pass every stage (5 before). None = off."""
+    short_lever_turn_deg: float = 10.0
+    """See ``short_lever_fraction``."""
     end_slack_deg: float | None = 10.0
     """When no plan follows the whole demo, the motion may end early: the parts are held at an
     earlier frame from which every part stays within ``end_slack_deg`` and ``end_slack_m`` of its
@@ -764,6 +778,10 @@ def plan_robot(
     if not all(np.isfinite(slack)) or min(slack) < 0 or not all(0 < s <= 1 for s in config.end_slack_fractions):
         raise ValueError(f"config.end_slack_deg / end_slack_m: expected ≥ 0 (got {config.end_slack_deg}, "
                          f"{config.end_slack_m}); end_slack_fractions in (0, 1] (got {config.end_slack_fractions})")
+    lever = config.short_lever_fraction
+    if lever is not None and not (0.0 < lever < 1.0 and 0.0 <= config.short_lever_turn_deg < 180.0):
+        raise ValueError(f"config.short_lever_fraction: expected None or a fraction in (0, 1), got {lever} "
+                         f"(short_lever_turn_deg {config.short_lever_turn_deg}: expected 0–180)")
     if hand_points is not None:
         hand_points = [(int(k), np.asarray(x, np.float64).reshape(-1)) for k, x in hand_points]
         bad = [(k, x) for k, x in hand_points if not 0 <= k < len(part_points) or x.shape != (3,) or not np.all(np.isfinite(x))]
@@ -977,16 +995,27 @@ def _plan_robot(
     # how far each free part turns from the first keyframe, in its own frame (K, 3 rotation vectors)
     turns = {k: _part_turns(T_obj_part[idx, k]) for k in (free_parts or ())} if config.free_twist_deg is not None else {}
 
-    twist_rows: dict[int, np.ndarray] = {}  # part -> per grasp row (seating moves grasps along z only)
+    late_rows: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # part -> (twisting, short lever) per grasp row
+    # (seating moves grasps along their approach only: the rows keep their flags)
+
+    def late_flags(k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Part k's grasps that must turn it about their closing axis (a free part,
+        ``free_twist_deg``) and those near its turn axis (a jointed part, ``short_lever_fraction``)."""
+        if k not in late_rows:
+            Tg = np.asarray(get_grasps(k).T_part_grasp)
+            twist = short = np.zeros(Tg.shape[0], bool)
+            if k in turns:
+                twist = _grasp_twist(turns[k], Tg) > np.deg2rad(config.free_twist_deg)
+            if config.short_lever_fraction is not None and k not in (free_parts or ()):
+                short = _short_lever(T_obj_part[idx, k], Tg, np.asarray(part_points[k]), config.short_lever_fraction,
+                                     np.deg2rad(config.short_lever_turn_deg))  # fmt: skip
+            late_rows[k] = (twist, short)
+        return late_rows[k]
 
     def twisting(k: int, i) -> np.ndarray:
-        """Whether grasps ``i`` of part k must turn it about their closing axis (``free_twist_deg``)."""
-        i = np.asarray(i)
-        if k not in turns:
-            return np.zeros(i.shape, bool)
-        if k not in twist_rows:
-            twist_rows[k] = _grasp_twist(turns[k], np.asarray(get_grasps(k).T_part_grasp)) > np.deg2rad(config.free_twist_deg)
-        return twist_rows[k][i]
+        """Whether grasps ``i`` of part k rank after the others of their tier (:func:`late_flags`)."""
+        twist, short = late_flags(k)
+        return (twist | short)[np.asarray(i)]
 
     def tier_starts(k: int) -> tuple[int, ...]:
         """First rows of part k's tiers 1–3 (:func:`_tier`): near the hands, spread, top-down."""
@@ -1123,7 +1152,8 @@ def _plan_robot(
     info["chosen"]["hand_grasp"] = [bool(k >= 0 and hand_row.get(int(k), np.inf) <= i < spread_row.get(int(k), -1))
                                     for k, i in zip(best["part"], best["grasp_index_arr"])]  # fmt: skip
     info["chosen"]["topdown_grasp"] = any(i >= topdown_row.get(k, big) for k, i in rows)
-    info["chosen"]["twisting_grasp"] = bool(best["twist"])
+    info["chosen"]["twisting_grasp"] = any(bool(late_flags(k)[0][i]) for k, i in rows)
+    info["chosen"]["short_lever_grasp"] = any(bool(late_flags(k)[1][i]) for k, i in rows)
     info["chosen"]["tier"] = int(best["tier"])  # 0 best-scored, 1 near the hands, 2 spread, 3 top-down
     info["hand_points_mm"] = [[int(k), [round(1e3 * float(v), 2) for v in x]] for k, x in (hand_points or [])]
     info["chosen"]["grasp_depth"] = [float(seat_cache[int(k)][2][int(i)]) if k >= 0 else None
@@ -1187,6 +1217,31 @@ def _grasp_twist(turns: np.ndarray, T_part_grasp: np.ndarray) -> np.ndarray:
     turns ``(K, 3)`` of :func:`_part_turns`."""
     axes = np.asarray(jaxlie.SO3(jnp.asarray(np.asarray(T_part_grasp)[..., :4], jnp.float32)).as_matrix(), np.float64)[..., :, 0]
     return np.abs(axes.reshape(-1, 3) @ turns.T).max(axis=1, initial=0.0)
+
+
+def _short_lever(T_obj_part_k: np.ndarray, T_part_grasp: np.ndarray, points: np.ndarray, fraction: float,
+                 min_turn: float) -> np.ndarray:
+    """(n,) whether each grasp (part frame) lies within ``fraction`` × the farthest of the part's
+    ``points`` (its rest-centroid frame, as the grasps') from the part's turn axis: the screw
+    axis of its motion (object frame) from its first pose in ``(K, 7)`` to the one it turned
+    most from. All False when it never turns by ``min_turn`` (rad)."""
+    T = jaxlie.SE3(jnp.asarray(T_obj_part_k, jnp.float32))
+    rel = T @ jaxlie.SE3(T.wxyz_xyz[0]).inverse()  # motion from the first pose, object frame
+    rv = np.asarray(rel.rotation().log(), np.float64)
+    th = np.linalg.norm(rv, axis=-1)
+    n = np.asarray(T_part_grasp).reshape(-1, 7).shape[0]
+    j = int(np.argmax(th))
+    if th[j] < min_turn:
+        return np.zeros(n, bool)
+    w = rv[j] / th[j]
+    R = np.asarray(rel.rotation().as_matrix(), np.float64)[j]
+    t = np.asarray(rel.translation(), np.float64)[j]
+    c = np.linalg.lstsq(np.eye(3) - R, t - (w @ t) * w, rcond=None)[0]  # a point on the axis
+    T0 = jaxlie.SE3(jnp.asarray(T_obj_part_k[0], jnp.float32))
+    rest = lambda x: np.asarray(T0 @ jnp.asarray(x, jnp.float32), np.float64)  # noqa: E731
+    dist = lambda x: np.linalg.norm(np.cross(x - c, w), axis=-1)  # noqa: E731
+    g = rest(np.asarray(T_part_grasp).reshape(-1, 7)[:, 4:])
+    return dist(g) < fraction * dist(rest(points)).max()
 
 
 def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):

@@ -486,12 +486,14 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         candidates = [c for c in candidates if c[0] in held]
     if config.slide_max_turn_deg is not None:
         # a part the first pass turned through a wide angle relative to its neighbour is hinged:
-        # a slide's first pass turns it by a few degrees (`slide_max_turn_deg`)
+        # a slide's first pass turns it by a few degrees (`slide_max_turn_deg`); a part whose
+        # pinch track judges its slides (`slide_hand_ratio`) is left to the hand
+        judged = hand_ref if config.slide_hand_ratio is not None else {}
         kept = []
         for c in candidates:
             turn = float(relative_turn_deg(T_a, c[0], c[1]).max())
             info[str(c[0])]["first_turn_deg"] = round(turn, 2)
-            if turn <= config.slide_max_turn_deg:
+            if turn <= config.slide_max_turn_deg or c[0] in judged:
                 kept.append(c)
             else:
                 info.setdefault("slide_candidates_turned", []).append(int(c[0]))
