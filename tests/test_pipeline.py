@@ -54,6 +54,8 @@ def test_pipeline_track_config_carries_the_pipeline_options():
     # the registration's seeds (the pipeline and experiments.registration_seeds share them)
     assert PipelineConfig(register_seeds=12).register_config().yaw_seeds == 12
     assert on.weights.motion == PipelineConfig().track_motion and on.lr_start == PipelineConfig().track_lr_start
+    assert on.separable_motion == PipelineConfig().track_motion_separable
+    assert PipelineConfig(track_motion_separable=0.5).track_config().separable_motion == 0.5
 
 
 def test_hand_keypoints_follow_the_tracked_object_frame(tmp_path):

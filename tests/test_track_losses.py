@@ -973,7 +973,8 @@ def test_slide_choice_keeps_a_margin_tries_a_parts_axes_as_alternatives_and_stac
 def test_hand_depth_weight_acts_on_separable_objects_unless_asked_for_attached_ones():
     """`Weights.from_config`: the hand depth term keeps its weight on a separable object, is off
     on an attached one by default (it pulled jointed parts off), and on with
-    `hand_depth_attached`; separable objects also take `separable_arap`."""
+    `hand_depth_attached`; separable objects also take `separable_arap` and `separable_motion`
+    (None: `weights.motion`)."""
     from rsrd_jax.track import LossWeights, TrackConfig
     from rsrd_jax.track._dpm import Weights
 
@@ -984,6 +985,11 @@ def test_hand_depth_weight_acts_on_separable_objects_unless_asked_for_attached_o
     assert float(Weights.from_config(on, False, 0.05).hand_depth) == pytest.approx(0.2)
     assert float(Weights.from_config(cfg, True, 0.05).arap) == pytest.approx(cfg.separable_arap)
     assert float(Weights.from_config(cfg, False, 0.05).arap) == pytest.approx(cfg.weights.arap)
+    moving = TrackConfig(weights=LossWeights(motion=0.1), separable_motion=1.0)
+    assert float(Weights.from_config(moving, True, 0.05).motion) == pytest.approx(1.0)
+    assert float(Weights.from_config(moving, False, 0.05).motion) == pytest.approx(0.1)
+    plain = dataclasses.replace(moving, separable_motion=None)
+    assert float(Weights.from_config(plain, True, 0.05).motion) == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("anchor_by", ["visible", "opacity"])

@@ -286,6 +286,14 @@ class TrackConfig(eqx.Module):
     saturates: 41 against the hand term's 0.3 in gradient per metre, 20 mm out); with 2e-4 the
     hand pulls it out (34.6 mm: along the wrong viewing depth), and with the hand depth term too
     the plug is tracked at 9.9 mm instead of 38.6 mm (robot trials' build)."""
+    separable_motion: float | None = None
+    """Motion-prior weight for separable objects (None: `weights.motion`). Nothing but the
+    motion prior holds a separable object's parts where the data say little (their ARAP is
+    RSRD's 2e-4, `separable_arap`): on the studio usb_plug (the robot trials' build, 90 frames)
+    with the pipeline's 0.1 the brick, held still by one hand, turned 34° and moved 22–36 mm
+    while the other hand pulled the plug out (object-frame ADD brick / plug 10.6 / 12.1 mm); with
+    1.0 it turned at most 9° (3.3 / 8.3 mm), with 3.0 2.4 / 6.5 mm, with 10 the plug lagged
+    the pull (1.7 / 20.0 mm); `PipelineConfig.track_motion_separable` (3.0)."""
     arap_scale: float = 0.001
     """Barron scale c of the ARAP loss, metres."""
     support_plane: tuple[float, float, float, float] | None = None

@@ -308,8 +308,9 @@ class Weights(eqx.Module):
         ts = cfg.translation_scale if cfg.translation_scale is not None else object_radius
         scale = f([ts, ts, ts, 1.0, 1.0, 1.0])
         arap = w.arap if not separable or cfg.separable_arap is None else cfg.separable_arap
+        motion = w.motion if not separable or cfg.separable_motion is None else cfg.separable_motion
         return Weights(f(w.feature), f(w.depth_rank), f(arap), f(w.touch), f(w.rgb), f(a), f(cfg.arap_scale), f(cfg.alpha_mask), scale,
-                       f(w.support), f(w.hand), f(cfg.hand_alpha), f(cfg.hand_scale_cells), f(w.motion), f(w.hand_depth if separable or cfg.hand_depth_attached else 0.0),
+                       f(w.support), f(w.hand), f(cfg.hand_alpha), f(cfg.hand_scale_cells), f(motion), f(w.hand_depth if separable or cfg.hand_depth_attached else 0.0),
                        f(cfg.hand_depth_scale))  # fmt: skip
 
 
