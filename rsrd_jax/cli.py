@@ -173,6 +173,9 @@ def cmd_track(a: argparse.Namespace) -> int:
     if (out / "trajectory.npz").exists() and not a.overwrite:
         print(f"error: {out / 'trajectory.npz'} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
+    if a.w_motion_separable is not None and not 0.0 <= a.w_motion_separable < float("inf"):
+        print(f"error: --w-motion-separable {a.w_motion_separable}: expected a finite weight ≥ 0", file=sys.stderr)
+        return 2
     model = load_object_model(a.model)
     demo = read_demo(a.video, a.camera)
     demo_dir = Path(a.video).parent if Path(a.video).is_file() else Path(a.video)
@@ -188,7 +191,8 @@ def cmd_track(a: argparse.Namespace) -> int:
                           hand=a.w_hand, motion=a.w_motion, hand_depth=a.w_hand_depth)  # fmt: skip
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
-                      slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis)  # fmt: skip
+                      slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis,
+                      separable_motion=a.w_motion_separable)  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
     traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable, fingertips=fingertips)
     save_trajectory(traj, out)
@@ -476,6 +480,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "plane; rsrd-jax demo: 0.2)")  # fmt: skip
     tr.add_argument("--w-motion", type=float, default=0.0,
                     help="per-frame motion prior weight: squared pose update away from the extrapolated guess (rsrd-jax demo: 0.1)")  # fmt: skip
+    tr.add_argument("--w-motion-separable", type=float, default=None, metavar="W",
+                    help="motion prior weight on a separable object (TrackConfig.separable_motion; default --w-motion; "
+                         "rsrd-jax demo: 3.0)")  # fmt: skip
     tr.add_argument("--roi-size", type=int, default=224, help="ROI crop side in pixels")
     tr.add_argument("--steps", type=int, default=50, help="Adam steps per frame")
     tr.add_argument("--smooth-iters", type=int, default=30, help="joint smoothing iterations (0: off)")

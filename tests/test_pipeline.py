@@ -304,3 +304,38 @@ def test_track_cli_hand_options_match_the_library():
     with pytest.raises(SystemExit):
         p.parse_args(base + ["--hands", "mediapipe"])
     assert PipelineConfig().track_hands is True
+
+
+@pytest.mark.parametrize("w", ["-1", "nan", "inf"])
+def test_cli_track_refuses_a_negative_or_nan_separable_motion_weight(tmp_path, capsys, w):
+    from rsrd_jax.cli import main
+
+    rc = main(["track", str(tmp_path / "no_model"), str(tmp_path / "no_video.mp4"), "--out", str(tmp_path / "t"),
+               "--w-motion-separable", w])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "--w-motion-separable" in err, err
+    assert not (tmp_path / "t").exists()
+
+
+def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch):
+    """`--w-motion-separable` reaches `TrackConfig.separable_motion` (checked where `track_video`
+    is called; the model loader is stubbed to stop there)."""
+    import rsrd_jax.track as T
+    from rsrd_jax import cli
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_track(model, demo, cfg, *args, **kw):
+        seen["cfg"] = cfg
+        raise Stop
+
+    monkeypatch.setattr(T, "track_video", fake_track)
+    monkeypatch.setattr("rsrd_jax.parts.load_object_model", lambda p: object())
+    monkeypatch.setattr("rsrd_jax.io.read_demo", lambda v, c=None: object())
+    with pytest.raises(Stop):
+        cli.main(["track", str(tmp_path / "m"), str(tmp_path / "v.mp4"), "--out", str(tmp_path / "t"), "--occluder", "none",
+                  "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5"])  # fmt: skip
+    assert seen["cfg"].separable_motion == 2.5
