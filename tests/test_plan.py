@@ -1091,7 +1091,8 @@ def test_grasps_near_a_turning_parts_hinge_rank_after_the_others(robot):
     pinches across it near the hinge (lever 0.12 of the bar's farthest point) and at the free
     end (0.88), the plan takes the cheapest near the hinge without the rule
     (`short_lever_fraction` None) and one at the free end with it, reporting no short lever;
-    with only the pinches near the hinge it still plans, and says so."""
+    with only the pinches near the hinge it still plans, and says so; declared free, the part is
+    exempt."""
     from rsrd_jax.plan._search import _short_lever
 
     g = np.linspace(-0.06, 0.06, 25)
@@ -1120,6 +1121,9 @@ def test_grasps_near_a_turning_parts_hinge_rank_after_the_others(robot):
     near = eqx_rows(both, [4, 5, 6, 7])
     plan2 = plan_robot(robot, [bar], traj, T_ROBOT_OBJ, grasps={0: near}, config=cfg)
     assert plan2.success and plan2.info["chosen"]["short_lever_grasp"] is True
+    # a free part (no hinge sets its path) is exempt: the cheaper pinch near the "hinge" again
+    free = plan_robot(robot, [bar], traj, T_ROBOT_OBJ, grasps={0: both}, config=cfg, free_parts=[0])
+    assert free.success and free.grasp_index[0] == off.grasp_index[0] and free.info["chosen"]["short_lever_grasp"] is False
 
 
 def eqx_rows(g: PartGrasps, rows) -> PartGrasps:

@@ -273,8 +273,9 @@ class PlanConfig(eqx.Module):
     hinged part goes, and the pinch point follows the tracked arc, whose centre is off by the
     track's error; near the axis a few millimetres of path error are a wide turn of the part in
     the jaw. The axis: the screw axis of the part's motion (object frame) from the first keyframe
-    to the one where it turned most. Measured on the studio scissors (session 46's machine, its
-    robot-trial build and track, 10 table orientations): the top-down pinches chosen by cost
+    to the one where it turned most (object frame: the root is taken to stay put). Measured on
+    the studio scissors (session 47, the machine of sessions 44–47, its robot-trial build and
+    track, 10 table orientations): the top-down pinches chosen by cost
     held the blade's neck 29 mm from the pivot (0.35 of the blade's 84 mm) and let the blade turn
     20.3–23.7° in the jaw (limit 20°) at 4 of 6 orientations, at 39–44 mm (0.46–0.52) it turned
     7.4–8.3°; with this rule 8 of 10 trials pass every stage (5 before). None = off."""
@@ -1003,7 +1004,7 @@ def _plan_robot(
         ``free_twist_deg``) and those near its turn axis (a jointed part, ``short_lever_fraction``)."""
         if k not in late_rows:
             Tg = np.asarray(get_grasps(k).T_part_grasp)
-            twist = short = np.zeros(Tg.shape[0], bool)
+            twist, short = np.zeros(Tg.shape[0], bool), np.zeros(Tg.shape[0], bool)
             if k in turns:
                 twist = _grasp_twist(turns[k], Tg) > np.deg2rad(config.free_twist_deg)
             if config.short_lever_fraction is not None and k not in (free_parts or ()):
@@ -1237,11 +1238,9 @@ def _short_lever(T_obj_part_k: np.ndarray, T_part_grasp: np.ndarray, points: np.
     R = np.asarray(rel.rotation().as_matrix(), np.float64)[j]
     t = np.asarray(rel.translation(), np.float64)[j]
     c = np.linalg.lstsq(np.eye(3) - R, t - (w @ t) * w, rcond=None)[0]  # a point on the axis
-    T0 = jaxlie.SE3(jnp.asarray(T_obj_part_k[0], jnp.float32))
-    rest = lambda x: np.asarray(T0 @ jnp.asarray(x, jnp.float32), np.float64)  # noqa: E731
-    dist = lambda x: np.linalg.norm(np.cross(x - c, w), axis=-1)  # noqa: E731
-    g = rest(np.asarray(T_part_grasp).reshape(-1, 7)[:, 4:])
-    return dist(g) < fraction * dist(rest(points)).max()
+    R0, t0 = np.asarray(T.rotation().as_matrix(), np.float64)[0], np.asarray(T.translation(), np.float64)[0]
+    dist = lambda x: np.linalg.norm(np.cross(x @ R0.T + t0 - c, w), axis=-1)  # noqa: E731  (part frame -> object frame at rest)
+    return dist(np.asarray(T_part_grasp).reshape(-1, 7)[:, 4:]) < fraction * dist(np.asarray(points)).max()
 
 
 def _tier(tier_rows: dict[int, tuple[int, ...]], k: int, i):
