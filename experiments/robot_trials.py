@@ -270,6 +270,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hand-grasps", action=argparse.BooleanOptionalAction, default=PipelineConfig.plan_hand_grasps,
                     help="also sample grasps where the tracker anchored each hand (PipelineConfig.plan_hand_grasps; off "
                          "by default)")  # fmt: skip
+    ap.add_argument("--root-still", action=argparse.BooleanOptionalAction, default=PipelineConfig.plan_root_still,
+                    help="plan the parts' motion relative to the root held still (PipelineConfig.plan_root_still; off "
+                         "by default)")  # fmt: skip
     ap.add_argument("--grasp-keyframe-weight", type=float, default=PipelineConfig.plan_grasp_keyframe_weight,
                     help="PipelineConfig.plan_grasp_keyframe_weight (the grasp keyframe's pose rows)")
     ap.add_argument("--scan-surface", action="store_true",
@@ -296,7 +299,7 @@ def main(argv=None) -> int:
         sizes = {} if a.build_size == "pipeline" else DEFAULT_BUILD_SIZES
         cfg = PipelineConfig(seed=a.seed, demo_frames=a.frames, rerun=not a.no_rerun, sim_video=not a.no_rerun,
                              plan_extent_meshes=a.extent_meshes, plan_grasp_keyframe_weight=a.grasp_keyframe_weight,
-                             plan_hand_grasps=a.hand_grasps, plan_square_grasps=a.square_grasps,
+                             plan_hand_grasps=a.hand_grasps, plan_root_still=a.root_still, plan_square_grasps=a.square_grasps,
                              plan_square_cone_deg=a.square_cone, plan_scan_surface=a.scan_surface, **sizes)  # fmt: skip
         commit = _commit()  # the code this run imports (before it runs: a commit may land meanwhile)
         res = run(objects, a.yaws, cfg, Path(a.work), a.resume)

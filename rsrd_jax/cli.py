@@ -340,7 +340,7 @@ def cmd_plan(a: argparse.Namespace) -> int:
         grasp_config=GraspConfig(num_grasps=a.grasps), collision_margin=a.collision_margin,
         pad_table_margin=a.pad_table_margin, approach_clearance=tuple(a.approach_clearance),
         end_slack_deg=None if a.no_end_slack else a.end_slack[0], end_slack_m=a.end_slack[1] / 1000.0,
-        short_lever_fraction=a.short_lever or None,
+        short_lever_fraction=a.short_lever or None, root_still=a.root_still,
     )  # fmt: skip
     if a.square_grasps:
         cfg = cfg.with_square_grasps(cone_deg=a.square_cone)
@@ -606,6 +606,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--short-lever", type=float, default=0.4, metavar="FRACTION",
                     help="grasps on a turning jointed part closer to its turn axis than FRACTION × its farthest point "
                          "rank after the others of their tier (PlanConfig.short_lever_fraction; 0: off)")  # fmt: skip
+    pl.add_argument("--root-still", action="store_true",
+                    help="plan every part's motion relative to the root held at its first-frame pose, unless a hand "
+                         "held the root (PlanConfig.root_still; off: the object-frame track)")  # fmt: skip
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--rerun", action="store_true", help="also write plan.rrd (robot following the plan with the object)")
     pl.add_argument("--overwrite", action="store_true", help="replace an existing plan")

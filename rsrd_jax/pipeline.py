@@ -132,6 +132,9 @@ class PipelineConfig:
     orientations) led_light 0 → 5/10 with them (pinches of the panel's tab where the hand held it,
     instead of top-down pinches that slip or shut beside it), but scissors 5 → 0/10 (pinches near
     the hand on the thin ring shut on nothing, instead of the top-down pinches)."""
+    plan_root_still: bool = False
+    """`PlanConfig.root_still`: plan the parts' motion relative to the root held still (off: the
+    object-frame track; see there for what each gives on the robot trials' tracks)."""
     plan_grasp_keyframe_weight: float = 3.0
     """`PlanConfig.grasp_keyframe_weight`: weight of the grasp keyframe's pose rows (its default)."""
     plan_square_grasps: bool = True
@@ -234,7 +237,7 @@ def _plan_config(cfg: PipelineConfig) -> PlanConfig:
     from .plan import PlanConfig
 
     out = PlanConfig(seed=cfg.seed, collision_margin=cfg.plan_collision_margin,
-                     grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight)
+                     grasp_keyframe_weight=cfg.plan_grasp_keyframe_weight, root_still=cfg.plan_root_still)
     return out.with_square_grasps(cone_deg=cfg.plan_square_cone_deg) if cfg.plan_square_grasps else out
 
 

@@ -26,6 +26,7 @@ from rsrd_jax.plan import (
     plan_robot,
     problem_data,
     resample_keyframes,
+    root_still_trajectory,
     strip_robot,
     tcp_errors,
     trajectory_problem,
@@ -476,6 +477,71 @@ def test_studio_inputs_match_studio_ground_truth_and_plan(robot, nerf_gun):
         assert plan.result_name in ("unreachable", "joint_limits", "collision", "approach") and plan.message
 
 
+def test_root_still_trajectory_holds_the_root_and_keeps_each_part_relative_to_it():
+    """Against 4×4 matrices (scipy): ``T'[t, k] = T[0, 0] · T[t, 0]⁻¹ · T[t, k]``, the root constant,
+    every part's pose relative to the root unchanged, and the root motion removed reported."""
+    rng = np.random.default_rng(3)
+    T, P = 7, 3
+    q = Rotation.random(T * P, random_state=4).as_quat().reshape(T, P, 4)  # xyzw
+    x = rng.normal(0.0, 0.05, (T, P, 3))
+    traj = np.concatenate([q[..., [3, 0, 1, 2]], x], -1)
+
+    def mat(p):
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = Rotation.from_quat(np.r_[p[1:4], p[0]]).as_matrix(), p[4:]
+        return M
+
+    out, removed = root_still_trajectory(traj)
+    for t in range(T):
+        for k in range(P):
+            ref = mat(traj[0, 0]) @ np.linalg.inv(mat(traj[t, 0])) @ mat(traj[t, k])
+            np.testing.assert_allclose(mat(out[t, k]), ref, atol=1e-5)
+            rel = np.linalg.inv(mat(out[t, 0])) @ mat(out[t, k])
+            np.testing.assert_allclose(rel, np.linalg.inv(mat(traj[t, 0])) @ mat(traj[t, k]), atol=1e-5)
+    np.testing.assert_array_equal(out[:, 0], np.repeat(traj[:1, 0], T, 0))
+    dist = max(np.linalg.norm(traj[t, 0, 4:] - traj[0, 0, 4:]) for t in range(T))
+    turn = max((Rotation.from_matrix(mat(traj[0, 0])[:3, :3]).inv() * Rotation.from_matrix(mat(traj[t, 0])[:3, :3])).magnitude()
+               for t in range(T))  # fmt: skip
+    assert removed["max_root_motion_mm"] == pytest.approx(1000 * dist, abs=0.01)
+    assert removed["max_root_turn_deg"] == pytest.approx(np.rad2deg(turn), abs=0.01)
+
+
+def test_a_drifting_root_is_held_still_unless_a_hand_held_it(robot):
+    """A cube (part 1) moving on a root cube (part 0) whose track drifts 4 cm along with it: with
+    ``root_still`` the plan follows the cube relative to the still root (FK of the joints within
+    1 cm of ``T_robot_obj · T_root(0) · T_root(t)⁻¹ · T_cube(t) · grasp``, ≥ 3 cm off the
+    object-frame target at the last keyframe) and reports the drift; with it off (the default),
+    or with a hand on the root, it follows the object-frame motion."""
+    moving = _trajectory()
+    drift = np.zeros_like(moving)
+    drift[..., 0] = 1.0
+    drift[..., 5] = 0.3
+    drift[..., 4] = np.linspace(0.0, 0.04, len(moving))[:, None]  # the root slides 4 cm along x
+    cube = moving.copy()
+    cube[..., 4] += drift[..., 4]
+    traj = np.concatenate([drift, cube], 1)
+    cfg = dataclasses.replace(CFG, parts=(1,), root_still=True)
+    grasps = {1: _grasps(8)}
+
+    def fk_error(plan, target):
+        g = jaxlie.SE3(jnp.asarray(plan.T_part_grasp[0], jnp.float32))
+        T_tgt = jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(target[plan.keyframe_indices, 1], jnp.float32)) @ g
+        tcp = jaxlie.SE3(tcp_poses(robot, jnp.asarray(plan.q_keyframes, jnp.float32))[:, 0])
+        return np.linalg.norm(np.asarray(tcp.translation() - T_tgt.translation()), axis=-1)
+
+    still = root_still_trajectory(traj)[0]
+    np.testing.assert_allclose(still[:, 1, 4:], moving[:, 0, 4:], atol=1e-6)  # the cube's own motion
+    plan = plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg)
+    assert plan.success, (plan.message, plan.info)
+    assert plan.info["root_still"]["max_root_motion_mm"] == pytest.approx(40.0, abs=0.01)
+    assert fk_error(plan, still).max() < 0.01 and fk_error(plan, traj)[-1] > 0.03
+    for off in (plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps,
+                           config=dataclasses.replace(cfg, root_still=False)),
+                plan_robot(robot, [_cube(), _cube()], traj, T_ROBOT_OBJ, grasps=grasps, config=cfg, hand_parts=(0, 1))):  # fmt: skip
+        assert off.success and off.info["root_still"] is None, (off.message, off.info.get("root_still"))
+        assert fk_error(off, traj).max() < 0.01 and fk_error(off, still)[-1] > 0.03
+
+
 def test_bimanual_plan_couples_both_arms(robot):
     """Two 3 cm cubes moving in parallel, 36 cm apart: the (left part, right part) pair is planned in
     one 16-DoF solve; the crossed assignment is rejected (it collides) and the straight one wins."""
@@ -534,9 +600,13 @@ def test_single_arm_fallback_takes_the_part_that_moved_most(robot, monkeypatch):
     assert d["bimanual"] is True and d["fallback"] == "single-arm" and d["bimanual_result"] == "unreachable", d
     assert d["fallback_parts"] == [1, 0]
     assert plan.success and sorted(plan.part.tolist()) == [-1, 1], plan.info
-    # the hand ranking alone (no pair decided) takes part 0
-    alone = plan_robot(*args, hands=tips, grasps=grasps, config=dataclasses.replace(cfg, bimanual=False))
+    # the hand ranking alone (no pair decided) takes part 0 in the object frame; with the root
+    # held still (`root_still`, no hand known to hold it) it did not move, so part 1
+    single = dataclasses.replace(cfg, bimanual=False)
+    alone = plan_robot(*args, hands=tips, grasps=grasps, config=single)
     assert sorted(alone.part.tolist()) == [-1, 0]
+    still = plan_robot(*args, hands=tips, grasps=grasps, config=dataclasses.replace(single, root_still=True))
+    assert still.info["still_parts"] == [0] and sorted(still.part.tolist()) == [-1, 1]
 
 
 @pytest.mark.slow
@@ -1263,6 +1333,35 @@ def test_cli_plan_refuses_a_short_lever_outside_0_1(tmp_path, capsys, lever):
     assert not (tmp_path / "plan").exists()
     with pytest.raises(ValueError, match="short_lever"):
         plan_robot(load_yumi(), [_cube()], _trajectory(), T_ROBOT_OBJ, config=PlanConfig(short_lever_fraction=float(lever)))
+
+
+@pytest.mark.parametrize("flag", [[], ["--root-still"]])
+def test_cli_plan_and_pipeline_pass_root_still_to_the_planner(tmp_path, monkeypatch, flag):
+    """`rsrd-jax plan --root-still` and `PipelineConfig.plan_root_still` reach `PlanConfig.root_still`
+    (off without them); the planner is stubbed after it receives its config."""
+    import types
+
+    import rsrd_jax.plan as plan_mod
+    from rsrd_jax.cli import main
+    from rsrd_jax.pipeline import PipelineConfig, _plan_config
+
+    seen = []
+    inputs = types.SimpleNamespace(part_points=[_cube(), _cube()], T_obj_part=np.concatenate([_trajectory()] * 2, 1),
+                                   hands=None, T_robot_obj=T_ROBOT_OBJ, free_parts=())  # fmt: skip
+    monkeypatch.setattr(plan_mod, "studio_plan_inputs", lambda path: inputs)
+
+    class Planned(Exception):
+        pass
+
+    def stub(*a, config, **kw):
+        seen.append(config)
+        raise Planned
+
+    monkeypatch.setattr(plan_mod, "plan_robot", stub)
+    with pytest.raises(Planned):
+        main(["plan", "--studio-gt", str(tmp_path), "--out", str(tmp_path / "plan"), *flag])
+    assert len(seen) == 1 and seen[0].root_still is bool(flag)
+    assert _plan_config(PipelineConfig(plan_root_still=bool(flag))).root_still is bool(flag)
 
 
 @pytest.mark.parametrize("slack", [["-1", "15"], ["10", "nan"]])

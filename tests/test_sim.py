@@ -330,6 +330,34 @@ def test_release_keeps_opening_while_a_pad_is_on_the_part(tmp_path):
     assert more.success, more.reasons
 
 
+def test_release_sets_down_a_part_resting_on_the_lower_pad(tmp_path):
+    """Regression (session 48): a tracked toy_drawer plan of session 47's robot trials (table yaw
+    −113.17°; `tests/data/toy_drawer_lower_plan`) pinches the drawer with the jaw nearly
+    vertical and pulls the drawer out, tilting the cabinet up. Opened fully, the jaw's lower pad
+    still carried the drawer (0.15 mm in) and the retreat dragged the drawer to its 70 mm stop,
+    20 mm past the demo (Exec failed). Lowering the arm toward that pad's outer side
+    (``release_lower``) sets the cabinet down: both pads end off the part (MuJoCo's pad
+    distances) and the retreat leaves the drawer where the motion ended (its slide joint)."""
+    studio = tmp_path / "toy_drawer"
+    make_object("toy_drawer", studio, StudioConfig(seed=0, demo_size=(32, 24), robot_size=(32, 24),
+                                                   robot_object_yaw_deg=-113.17, parts=("demo", "robot_view")))  # fmt: skip
+    plan = load_plan(Path(__file__).parent / "data" / "toy_drawer_lower_plan")
+    stay = simulate_plan(plan, studio, SimConfig(release_lower=0.0), progress=False)
+    low = simulate_plan(plan, studio, progress=False)
+    slide = lambda r: r.object_qpos[:, 7]  # noqa: E731  (the drawer's slide after the free root's 7)
+    end = lambda r: slide(r)[r.phase == 4][-1]  # noqa: E731
+    for r in (stay, low):
+        assert r.stages["grasp"], r.reasons
+        assert r.metrics["release"]["jaw_mm"]["left"] > 49.0  # opened fully
+    assert end(stay) == pytest.approx(end(low), abs=1e-9)  # the same motion; only the release differs
+    assert min(stay.metrics["release"]["pad_gap_mm"]["left"]) < 0.0 and stay.metrics["release"]["lowered_mm"]["left"] == 0.0
+    assert stay.stages["exec"] is False and slide(stay)[-1] - end(stay) > 0.005  # dragged out by the retreat
+    assert 0.0 < low.metrics["release"]["lowered_mm"]["left"] <= 1000 * SimConfig().release_lower
+    assert min(low.metrics["release"]["pad_gap_mm"]["left"]) >= 1000 * SimConfig().release_gap
+    assert abs(slide(low)[-1] - end(low)) < 0.002
+    assert low.success, low.reasons
+
+
 @pytest.mark.parametrize("name, yaw, part", [("red_box", None, 1), ("scissors", 102.83, 1)])
 def test_a_sided_release_leaves_the_object_where_the_motion_ended(tmp_path, name, yaw, part):
     """Regression (session 43): two tracked robot-trial plans (`tests/data/{name}_release_plan`;

@@ -58,6 +58,7 @@ from ._search import (
     plan_config_from_dict,
     plan_robot,
     resample_keyframes,
+    root_still_trajectory,
 )
 from ._proxy import PartSDF, RobotProxy, part_sdf, robot_proxy, sdf_distance
 from ._rerun import log_plan
@@ -87,6 +88,7 @@ __all__ += [
     "read_robot_object_pose",
     "resample_keyframes",
     "robot_proxy",
+    "root_still_trajectory",
     "sdf_distance",
     "strip_robot",
     "studio_plan_inputs",

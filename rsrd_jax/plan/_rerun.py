@@ -13,6 +13,7 @@ import numpy as np
 
 from ..robot import YumiModel, forward_kinematics
 from ._proxy import robot_proxy
+from ._search import root_still_trajectory
 
 _PART_COLOURS = np.array([[230, 120, 40], [60, 130, 220], [90, 190, 90], [200, 80, 200], [220, 200, 60],
                           [80, 200, 200], [150, 100, 60], [120, 120, 120]], np.uint8)  # fmt: skip
@@ -58,7 +59,8 @@ def log_plan(
         robot: from :func:`rsrd_jax.robot.load_yumi`.
         plan: a successful :class:`RobotPlan` (or a loaded plan artefact with the same fields).
         part_points: P point sets in their part frames (m), as given to the planner.
-        T_obj_part: (T, P, 7) part poses per video frame, as given to the planner.
+        T_obj_part: (T, P, 7) part poses per video frame, as given to the planner (held to the
+            still root as the planner did when ``plan.info["root_still"]`` is set).
         rrd_path: output file (written via a temporary file, then renamed).
         max_points: points logged per part.
 
@@ -72,6 +74,9 @@ def log_plan(
 
     qv = np.asarray(plan.q_video, np.float32)
     qa = np.asarray(plan.q_approach, np.float32)
+    info = getattr(plan, "info", None) or {}
+    if info.get("root_still") and np.ndim(T_obj_part) == 3 and np.shape(T_obj_part)[1:] == (len(part_points), 7):
+        T_obj_part = root_still_trajectory(T_obj_part)[0]
     T_obj_part = np.asarray(T_obj_part, np.float32)
     if qv.ndim != 2 or qv.shape[0] == 0:
         raise ValueError("log_plan: the plan has no joint trajectory (failed plan?)")

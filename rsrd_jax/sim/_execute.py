@@ -271,6 +271,21 @@ class _Runner:
         x = d.site_xmat[s.tcp_sites[a]].reshape(3, 3)[:, 0]
         return np.sign((d.geom_xpos[s.pad_geoms[a, f]] - d.site_xpos[s.tcp_sites[a]]) @ x) * x
 
+    def part_side(self, a: int | np.integer, f: int) -> float:
+        """Which side of finger pad ``f`` of arm ``a`` its intended part's nearest surface lies on,
+        along the pad's outward direction (``pad_outward``): negative inward (the side the pad
+        holds the part from), positive outward; 0 when the part is farther than 0.05 m."""
+        m, d, s = self.m, self.d, self.s
+        g, fromto, best, side = int(s.pad_geoms[a, f]), np.zeros(6), 0.05, 0.0
+        for h in s.part_geoms[self.part[a]]:
+            dist = mujoco.mj_geomDistance(m, d, g, int(h), 0.05, fromto)
+            if dist < best:
+                # from the pad's point to the part's; penetrating geoms report the two points the
+                # other way round (each inside the other geom)
+                v = (fromto[3:] - fromto[:3]) * (1.0 if dist > 0.0 else -1.0)
+                best, side = dist, float(v @ self.pad_outward(a, f))
+        return side
+
     def pads_room(self, a: int | np.integer, reach: float) -> np.ndarray:
         """(2,) free distance (m) of each finger pad of arm ``a`` on its outer side, where the pad
         moves as the jaw opens: the distance to the nearest object surface lying outward of the
@@ -569,6 +584,29 @@ def simulate_plan(
             q_rel = run.shifted(qv[-1], release_shift) if np.any(release_shift != 0.0) else qv[-1]
             run.hold(q_rel, cfg.settle_time if first else cfg.release_settle)
             first = False
+        # a part still resting on a pad when the jaw can open no more (lifted by the motion, it followed
+        # the lower pad down as the jaw opened) is set down: the arm moves along the jaw axis toward
+        # that pad's outer side, away from the part, while the other pad keeps its distance and
+        # nothing is in the way
+        lowered = np.zeros(2)
+        while cfg.release_lower > 0.0 and cfg.release_step > 0.0:
+            step = min(cfg.release_step, cfg.release_lower)
+            lowering = []
+            for a in arms:
+                g = run.pad_gaps(a)
+                f = int(np.argmin(g))
+                reach = step + cfg.release_gap
+                if (g[f] >= cfg.release_gap or g[1 - f] < reach or lowered[a] + step > cfg.release_lower + 1e-9
+                        or run.part_side(a, f) >= 0.0 or run.pads_room(a, reach)[f] < reach):  # fmt: skip
+                    continue
+                x = d.site_xmat[scene.tcp_sites[a]].reshape(3, 3)[:, 0]
+                release_shift[a] += (run.pad_outward(a, f) @ x) * step
+                lowered[a] += step
+                lowering.append(a)
+            if not lowering:
+                break
+            q_rel = run.shifted(qv[-1], release_shift)
+            run.hold(q_rel, cfg.release_settle)
         release_open = d.qpos[scene.robot_qpos[14:16]].copy()
         release_gaps = {a: run.pad_gaps(a) for a in arms}
         run.phase = 6
@@ -682,6 +720,7 @@ def simulate_plan(
                     "further_openings": {("right", "left")[a]: int(release_steps[a]) for a in arms},
                     "sided_openings": {("right", "left")[a]: int(sided_steps[a]) for a in arms},
                     "shift_mm": {("right", "left")[a]: round(1000 * float(release_shift[a]), 2) for a in arms},
+                    "lowered_mm": {("right", "left")[a]: round(1000 * float(lowered[a]), 2) for a in arms},
                     "pad_gap_mm": {("right", "left")[a]: [round(1000 * float(g), 2) for g in release_gaps[a]] for a in arms}},
         "exec": {"final_error_mm": [round(1000 * e[0], 2) for e in final_err],
                  "final_error_deg": [round(float(np.rad2deg(e[1])), 2) for e in final_err],
