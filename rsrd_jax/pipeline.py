@@ -96,6 +96,11 @@ class PipelineConfig:
     usb_plug (robot trials' build, the one separable studio object, so the value is fitted to
     it): object-frame ADD 11.35 mm at `track_motion` (0.1), 7.59 at 0.3, 5.81 at 1, 4.45 at 3,
     10.84 at 10 (the brick 1.7 mm, but the plug lags its pull: 20.0 mm)."""
+    track_still_root: bool = False
+    """`TrackConfig.still_root`: the root held at its frame-0 pose (the studio's camera is still
+    and its roots never move). Off for now: measured in session 48 on 9 of the 11 robot-trial
+    builds (`experiments/results/tracking_pipeline_s48_still_root.md`), not yet with the robot
+    trials."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
@@ -189,6 +194,7 @@ class PipelineConfig:
 
         return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
                            hinge_axes=self.track_hinge_axes, lr_start=self.track_lr_start, separable_motion=self.track_motion_separable,
+                           still_root=self.track_still_root,
                            weights=LossWeights(motion=self.track_motion, hand_depth=self.track_hand_depth if self.track_hands else 0.0))  # fmt: skip
 
 

@@ -317,9 +317,14 @@ def test_cli_track_refuses_a_negative_or_nan_separable_motion_weight(tmp_path, c
     assert not (tmp_path / "t").exists()
 
 
-def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch):
-    """`--w-motion-separable` reaches `TrackConfig.separable_motion` (checked where `track_video`
-    is called; the model loader is stubbed to stop there)."""
+@pytest.mark.parametrize("still", [False, True])
+def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch, still):
+    """`--w-motion-separable` reaches `TrackConfig.separable_motion` and `--still-root`
+    `TrackConfig.still_root` (off without it; checked where `track_video` is called; the model
+    loader is stubbed to stop there); `PipelineConfig.track_still_root` reaches the pipeline's
+    `TrackConfig`."""
+    from rsrd_jax.pipeline import PipelineConfig
+
     import rsrd_jax.track as T
     from rsrd_jax import cli
 
@@ -337,5 +342,6 @@ def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch):
     monkeypatch.setattr("rsrd_jax.io.read_demo", lambda v, c=None: object())
     with pytest.raises(Stop):
         cli.main(["track", str(tmp_path / "m"), str(tmp_path / "v.mp4"), "--out", str(tmp_path / "t"), "--occluder", "none",
-                  "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5"])  # fmt: skip
-    assert seen["cfg"].separable_motion == 2.5
+                  "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5", *(["--still-root"] if still else [])])  # fmt: skip
+    assert seen["cfg"].separable_motion == 2.5 and seen["cfg"].still_root is still
+    assert PipelineConfig(track_still_root=still).track_config().still_root is still

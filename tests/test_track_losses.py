@@ -970,6 +970,31 @@ def test_slide_choice_keeps_a_margin_tries_a_parts_axes_as_alternatives_and_stac
     assert tm == () and best is start and chosen == {}
 
 
+def test_a_part_whose_hinge_the_hand_ruled_out_takes_its_best_slide_outright():
+    """`_choose_slides(hinge_out=)`: the first pass, the pass to beat, does not stand for a hinge
+    the hand's pinch track ruled out, so that part's axis with the lowest data loss wins even
+    inside the margin (or above the start); another part still needs the margin."""
+    from types import SimpleNamespace
+
+    from rsrd_jax.track._track import _choose_slides
+
+    x, y = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+    losses = {((1, x),): 100.3, ((1, y),): 99.9, ((2, x),): 99.85, ((1, y), (2, x)): 99.8}
+
+    def with_slide(tm, k, nb, a, length, pair_mask, slot_pair):
+        return tm + ((k, tuple(a)),)
+
+    def run_pass(tm, k):
+        return SimpleNamespace(data_loss=np.array([losses[tm]]))
+
+    start = SimpleNamespace(data_loss=np.array([100.0]))
+    cands = [(1, 0, 0.05, [np.array(x), np.array(y)], None, 0), (2, 0, 0.05, [np.array(x)], None, 1)]
+    best, tm, chosen, _ = _choose_slides(start, (), cands, 0.005, with_slide, run_pass)
+    assert tm == () and chosen == {}  # 0.1 % better: inside the margin
+    best, tm, chosen, _ = _choose_slides(start, (), cands, 0.005, with_slide, run_pass, hinge_out={1})
+    assert tm == ((1, y),) and chosen == {1: list(y)} and float(np.sum(best.data_loss)) == 99.9  # part 2 needs the margin
+
+
 def test_hand_depth_weight_acts_on_separable_objects_unless_asked_for_attached_ones():
     """`Weights.from_config`: the hand depth term keeps its weight on a separable object, is off
     on an attached one by default (it pulled jointed parts off), and on with

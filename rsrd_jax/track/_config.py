@@ -160,7 +160,15 @@ class TrackConfig(eqx.Module):
     0.40–0.61 against 0.33 (a short pull and a slight turn about a far point trace the same
     path); the frog's two held legs 2.0–12.5 against 2.6 and 6.1. So the bear's and the red box's
     slide passes (4 each) are skipped and every slide of nerf_gun, toy_drawer and the frog is
-    still tried."""
+    still tried. Conversely (since session 48), when the hinge fits the pinch track worse than
+    this × the best slide tried (plus the floor), the hinge is ruled out: that part's slide with
+    the lowest data loss wins without beating the baseline (`slide_baseline="first"`: the first
+    pass, a free part on a weak contact band, does not stand for a hinge). With
+    `still_root` the first pass followed toy_drawer's pulled drawer freely (its data loss tied
+    with the level slide's, 92.3208 against 92.3203) while the pinch track put the hinge at
+    15.8 px and that slide at 1.4 px: the hinge was kept, 23.6 mm. On session 47's default
+    tracks no part comes near the rule (hinge against best slide, px: toy_drawer 0.47 / 0.44,
+    frog 2.95 / 3.43 and 1.14 / 1.57, nerf_gun 0.66 / 0.78)."""
     slide_max_turn_deg: float | None = 20.0
     """With `slides`: a candidate part that the first pass turned by more than this (degrees,
     relative to its neighbour, in any frame) is hinged and gets no slide hypothesis. None: no
@@ -325,6 +333,12 @@ class TrackConfig(eqx.Module):
     per-step cost follows the chunk budget, not the real counts: on nerf_gun (robot trials'
     build, frame 40) a 50-step solve took 0.57 s with 2.0 for every budget (the margin before
     session 36), 0.34 s with 1.25."""
+    still_root: bool = False
+    """Hold the root (part 0) at the pose frame 0's solve gives it for the rest of the video
+    (its updates are zero from frame 1 on, in the per-frame passes and the smoothing): the
+    camera is still and the object rests where it stands, so only the other parts move (the
+    studio's demos; RSRD's object on a table). Off: every part, the root too, is tracked in
+    the object frame, and a root the tracker pulls along with a moved part drifts."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 

@@ -299,6 +299,9 @@ class Weights(eqx.Module):
     hand_depth: Float[Array, ""]
     hand_depth_scale: Float[Array, ""]
     """Cauchy scale of the hand depth term, metres."""
+    part_step: Float[Array, " p"] | None = None
+    """Per part step multiplier (0 holds a part where its solve starts, `TrackConfig.still_root`);
+    None: 1 for every part."""
 
     @staticmethod
     def from_config(cfg, separable: bool, object_radius: float) -> Weights:
@@ -426,7 +429,8 @@ def solve_frame(
         (loss, aux), g = jax.value_and_grad(loss_fn, has_aux=True)(delta, k, bins)
         g = jnp.where(jnp.isfinite(g), g, 0.0)
         upd, state = opt.update(g, state)
-        return (delta - lr * w.step_scale * upd, state, bins), loss
+        held = 1.0 if w.part_step is None else w.part_step[:, None]
+        return (delta - lr * w.step_scale * held * upd, state, bins), loss
 
     delta0 = jnp.zeros((P, 6))
     keys = jax.random.split(key, lrs.shape[0] + 1)

@@ -234,6 +234,9 @@ def track_video(
         # `hand_depth_calibration` frames where it was known: only the hand's depth *changes* act
         calib = [[] for _ in range(obsr.fingertips.num_hands)]
         offset = np.full(obsr.fingertips.num_hands, np.nan)
+        w_first = w_rest = w
+        if config.still_root and tm.num_parts > 1:  # the root solved on frame 0 only
+            w_first, w_rest = _held_root(w, tm.num_parts, False), _held_root(w, tm.num_parts, True)
         bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
         for t in bar:
             prev = T_parts[-1] if T_parts else rest
@@ -245,7 +248,7 @@ def track_video(
             obs = with_hand_depth_offset(obs, offset)
             key, sub = jax.random.split(key)
 
-            def solve(T_guess=T_guess, obs=obs, sub=sub, prev=prev, prev2=prev2):
+            def solve(T_guess=T_guess, obs=obs, sub=sub, prev=prev, prev2=prev2, wt=w_first if t == 0 else w_rest):
                 starts = [T_guess]
                 if vh is not None and prev2 is not None:
                     # a second start (e.g. full constant velocity) on the same observations and
@@ -254,7 +257,7 @@ def track_video(
                 cfg = rc[0]
 
                 def run(T0):
-                    return jax.block_until_ready(solve_frame(tm, T0, T_cam_obj, obs, w, lrs, sub, cfg, config.rank_pairs, config.rebin_every))
+                    return jax.block_until_ready(solve_frame(tm, T0, T_cam_obj, obs, wt, lrs, sub, cfg, config.rank_pairs, config.rebin_every))
 
                 if len(starts) > 1 and pool is not None and cfg in warm:
                     # both starts at once, one thread each (`TrackConfig.parallel_starts`); only
@@ -329,7 +332,8 @@ def track_video(
         best, tm, chosen, trials = _slide_hypotheses(
             first, tm, candidates, config,
             lambda tm_k, k, nb, a, length, pair_mask, slot_pair: _with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair, config.contact_pivots),
-            lambda tm_h, desc, vh: per_frame_pass(tm_h, w, key, desc, vh=vh))  # fmt: skip
+            lambda tm_h, desc, vh: per_frame_pass(tm_h, w, key, desc, vh=vh),
+            frozenset(joint_info.get("hinges_ruled_out_by_hand", ())))  # fmt: skip
         for k, axis in chosen.items():
             joint_info[str(k)]["slide_axis"] = axis
         joint_info["slide_hypotheses"] = trials
@@ -353,6 +357,7 @@ def track_video(
         rng = np.random.default_rng(config.seed)
         B = min(config.smooth_batch, demo.num_frames)
         sw = jnp.asarray(config.smooth_weight, jnp.float32)
+        w_sm = _held_root(w, tm.num_parts, True) if config.still_root and tm.num_parts > 1 else w
         step_s: list[float] = []
         for it in tqdm(range(config.smooth_iters), desc="smooth", disable=not progress):
             frames = jnp.asarray(rng.choice(demo.num_frames, B, replace=False), jnp.int32)
@@ -362,7 +367,8 @@ def track_video(
             step_s.append(time.perf_counter() - ts)
             g = jnp.where(jnp.isfinite(g), g, 0.0)
             upd, state = opt.update(g, state)
-            delta = optax.apply_updates(delta, upd * w.step_scale)
+            held = 1.0 if w_sm.part_step is None else w_sm.part_step[:, None]
+            delta = optax.apply_updates(delta, upd * w.step_scale * held)
         T_stack = compose_update(T_stack, delta, tm.part_pivots)
         timings["smooth_compile_s"] = _first_call_excess(step_s)
     timings["smooth_s"] = time.perf_counter() - t_sm
@@ -498,6 +504,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
             else:
                 info.setdefault("slide_candidates_turned", []).append(int(c[0]))
         candidates = kept
+    hinge_out: set[int] = set()
     if config.slide_hand_ratio is not None and hand_ref:
         kept = []
         for k, nb, radius, dirs, mask, p in candidates:
@@ -512,6 +519,11 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
                 # only the directions the pinch track fits best
                 ok &= px <= np.sort(px[ok])[config.slide_hand_best - 1]
             info[str(k)]["slide_hand_px"] = np.round(px, 2).tolist()
+            if ok.any() and hinge_px > config.slide_hand_ratio * float(px[ok].min()) + SLIDE_HAND_FLOOR_PX:
+                # the converse: a slide fits the pinch track far better than the hinge, which the
+                # first pass (the baseline) does not stand for: the best slide wins outright
+                info[str(k)]["hinge_ruled_out_by_hand"] = True
+                hinge_out.add(int(k))
             if ok.any():
                 kept.append((k, nb, radius, dirs[ok], mask, p))
             else:
@@ -525,6 +537,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
         tm_b = eqx.tree_at(lambda m: (m.hinge_parts, m.hinge_axes, m.hinge_lengths, m.hinge_weight), tm_b, (
             jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
             jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
+    info["hinges_ruled_out_by_hand"] = sorted(hinge_out)
     return tm_b, info, key, candidates, first
 
 
@@ -536,7 +549,7 @@ def _hand_on(anchors, parts) -> int | None:
     return None
 
 
-def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, run_pass):
+def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, run_pass, hinge_out=frozenset()):
     """The second pass with slide hypotheses (`TrackConfig.slides`): each candidate's slides are
     tracked (`_choose_slides`) against the baseline `TrackConfig.slide_baseline` names, the first
     pass ("first") or a pass on the joint point with the hypotheses' starts ("joint"); when no
@@ -550,6 +563,7 @@ def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, ru
         config: the tracking options.
         with_slide: as `_choose_slides` takes it.
         run_pass: `(tm, description, velocity hypothesis) -> _Pass`, one per-frame pass.
+        hinge_out: as `_choose_slides` takes it.
 
     Returns:
         (the kept pass, its model, {part: winning axis}, the trials as `_choose_slides` gives
@@ -558,7 +572,8 @@ def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, ru
     vh = config.velocity_hypothesis if config.slide_velocity is None else config.slide_velocity
     base = first if config.slide_baseline == "first" else run_pass(tm, "track", vh)
     best, tm_s, chosen, trials = _choose_slides(base, tm, candidates, config.slide_min_gain, with_slide,
-                                                lambda tm_h, k: run_pass(tm_h, f"track (slide {k} hypothesis)", vh))  # fmt: skip
+                                                lambda tm_h, k: run_pass(tm_h, f"track (slide {k} hypothesis)", vh),
+                                                hinge_out)  # fmt: skip
     trials[0]["pass"] = config.slide_baseline
     if chosen:
         return best, tm_s, chosen, trials
@@ -567,7 +582,7 @@ def _slide_hypotheses(first, tm, candidates, config: TrackConfig, with_slide, ru
     return base, tm, chosen, trials
 
 
-def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
+def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass, hinge_out=frozenset()):
     """The slide hypotheses' choice (`TrackConfig.slides`).
 
     Each candidate part in turn (the other parts as chosen so far) is tracked on a slide along
@@ -583,6 +598,8 @@ def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
         min_gain: `TrackConfig.slide_min_gain`.
         with_slide: `(tm, k, nb, axis, length, pair_mask, slot_pair) -> tm` (`_with_slide`).
         run_pass: `(tm, k) -> _Pass`, one per-frame pass on a hypothesis for part k.
+        hinge_out: parts whose hinge the hand's pinch track ruled out (`slide_hand_ratio`): of
+            their axes the one with the lowest data loss wins, whatever the pass to beat.
 
     Returns:
         (best pass, its model, {part: winning axis}, the trials: part, axis and data loss of the
@@ -591,15 +608,27 @@ def _choose_slides(best, tm, candidates, min_gain: float, with_slide, run_pass):
     trials = [{"part": None, "axis": None, "data_loss": float(np.sum(best.data_loss))}]
     chosen: dict[int, list[float]] = {}
     for k, nb, length, axes, pair_mask, slot_pair in candidates:
-        tm_k = tm
+        tm_k, own = tm, None  # own: the best slide of a part whose hinge the hand ruled out
         for a in axes:
             tm_h = with_slide(tm_k, k, nb, a, length, pair_mask, slot_pair)
             res = run_pass(tm_h, k)
             trials.append({"part": int(k), "axis": [float(v) for v in a], "data_loss": float(np.sum(res.data_loss))})
-            if trials[-1]["data_loss"] < (1.0 - min_gain) * float(np.sum(best.data_loss)):
+            if int(k) in hinge_out:
+                if own is None or trials[-1]["data_loss"] < own[2]:
+                    own = (res, tm_h, trials[-1]["data_loss"], trials[-1]["axis"])
+            elif trials[-1]["data_loss"] < (1.0 - min_gain) * float(np.sum(best.data_loss)):
                 best, tm = res, tm_h
                 chosen[int(k)] = trials[-1]["axis"]
+        if own is not None:
+            best, tm, chosen[int(k)] = own[0], own[1], own[3]
     return best, tm, chosen, trials
+
+
+def _held_root(w: Weights, num_parts: int, held: bool) -> Weights:
+    """`w` with a step multiplier per part (`Weights.part_step`): 1 for every part, or 0 for the
+    root when `held` (`TrackConfig.still_root`)."""
+    step = jnp.ones(num_parts, jnp.float32)
+    return eqx.tree_at(lambda v: v.part_step, w, step.at[0].set(0.0) if held else step, is_leaf=lambda x: x is None)
 
 
 def _data_loss(w, aux) -> float:
