@@ -98,9 +98,10 @@ class PipelineConfig:
     10.84 at 10 (the brick 1.7 mm, but the plug lags its pull: 20.0 mm)."""
     track_still_root: bool = False
     """`TrackConfig.still_root`: the root held at its frame-0 pose (the studio's camera is still
-    and its roots never move). Off for now: measured in session 48 on 9 of the 11 robot-trial
-    builds (`experiments/results/tracking_pipeline_s48_still_root.md`), not yet with the robot
-    trials."""
+    and its roots never move). Off for now: on 10 of the 11 robot-trial builds (session 48,
+    `experiments/results/tracking_pipeline_s48_still_root.md`) mean object-frame ADD 3.18 mm
+    against 3.82, but nerf_gun's slide is lost (9.58 mm) and led_light's panel 2.4 → 9.9 mm; the
+    robot trials are not yet re-run with it."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
