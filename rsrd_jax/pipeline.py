@@ -100,8 +100,9 @@ class PipelineConfig:
     """`TrackConfig.still_root`: the root held at its frame-0 pose (the studio's camera is still
     and its roots never move). Off for now: on 10 of the 11 robot-trial builds (session 48,
     `experiments/results/tracking_pipeline_s48_still_root.md`) mean object-frame ADD 3.18 mm
-    against 3.82, but nerf_gun's slide is lost (9.58 mm) and led_light's panel 2.4 → 9.9 mm; the
-    robot trials are not yet re-run with it."""
+    against 3.82, but nerf_gun's slide is lost (9.58 mm) and led_light's panel 2.4 → 9.9 mm;
+    with `TrackConfig.slide_baseline="joint"` too, nerf_gun 1.22 mm and the mean 2.34 mm,
+    led_light the one regression. The robot trials are not yet re-run with it."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
