@@ -342,8 +342,9 @@ class TrackConfig(eqx.Module):
     roots' tracks moved 3–12 mm; toy_drawer's cabinet 12.4 mm along its pulled drawer). On 10 of
     the robot trials' 11 builds (session 48, the pipeline's settings) mean object-frame ADD 3.82
     → 3.18 mm, every root 0.17–0.95 mm, bear 5.64 → 2.03, scissors 4.68 → 1.13, but nerf_gun
-    4.78 → 9.58 (its slide lost to the first pass) and led_light 2.13 → 5.03 (the panel's joint
-    point fitted 13 mm off): not the default yet."""
+    4.78 → 9.58 (its slide lost to the first pass, which does not stand for the hinge when the
+    root is held: with `slide_baseline="joint"` too, 1.22 and the mean 2.34 mm) and led_light
+    2.13 → 5.03 (the panel's joint point fitted 13 mm off): not the default yet."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 
