@@ -138,17 +138,19 @@ class SimConfig(eqx.Module):
     of session 43 the base, lifted by the motion, kept resting on the lower pad with the sided
     release and the retreat dragged it (Exec failed); the symmetric release passed that plan."""
     release_lower: float = 0.012
-    """When the jaw can open no more and a pad still holds its part from below within
-    ``release_gap`` (the part lifted by the motion followed the lower pad down as the jaw opened),
-    the arm moves along the jaw axis toward that pad's outer side, away from the part, by
-    ``release_step`` and settles (``release_settle``), up to this far (m) in all, while the other
-    pad stays ``release_gap`` plus a step from the part and no object surface lies within that
-    on the pad's outer side (a sided release that stopped for lack of room does not lower: on
-    session 47's red_box plans that let the lid fall on the pad): the part is set down before
-    the retreat.
-    Without it, on session 47's tracked toy_drawer plans the cabinet, tilted up by the pull,
-    rested on the fully opened lower pad (0.15 mm in) and the retreat dragged the drawer to its
-    stop, 20 mm past the demo (Exec failed at all 10 orientations). 0 disables it."""
+    """When the release's opening has stopped (the jaw fully open, or no room to open further)
+    and a pad still holds its part from its inner side within ``release_gap`` (the part lifted
+    by the motion followed the lower pad down as the jaw opened), the arm moves along the jaw
+    axis toward that pad's outer side, away from the part, by ``release_step`` and settles
+    (``release_settle``), up to this far (m) in all, while the other pad stays ``release_gap``
+    plus a step from the part and no object surface lies within that on the pad's outer side
+    (a sided release that stopped for lack of room does not lower: on session 47's red_box
+    plans that let the lid fall on the pad): the part is set down before the retreat (the
+    lowering is part of ``metrics["release"]["shift_mm"]`` and reported alone as
+    ``lowered_mm``). Without it, on session 47's tracked toy_drawer plans the cabinet, tilted up
+    by the pull, rested on the fully opened lower pad (0.15 mm in) and the retreat dragged the
+    drawer to its stop, 20 mm past the demo (Exec failed at all 10 orientations). 0 disables
+    it."""
     release_settle: float = 0.1
     """Settle time (s) after each further opening of ``release_step``."""
     retreat_distance: float = 0.08

@@ -584,25 +584,25 @@ def simulate_plan(
             q_rel = run.shifted(qv[-1], release_shift) if np.any(release_shift != 0.0) else qv[-1]
             run.hold(q_rel, cfg.settle_time if first else cfg.release_settle)
             first = False
-        # a part still resting on a pad when the jaw can open no more (lifted by the motion, it followed
-        # the lower pad down as the jaw opened) is set down: the arm moves along the jaw axis toward
-        # that pad's outer side, away from the part, while the other pad keeps its distance and
-        # nothing is in the way
+        # a part still resting on a pad once the opening has stopped (fully open, or no room to
+        # open further; lifted by the motion, it followed the lower pad down as the jaw opened) is
+        # set down: the arm moves along the jaw axis toward that pad's outer side, away from the
+        # part, while the other pad keeps its distance and nothing is in the way
         lowered = np.zeros(2)
-        while cfg.release_lower > 0.0 and cfg.release_step > 0.0:
-            step = min(cfg.release_step, cfg.release_lower)
-            lowering = []
+        step = min(cfg.release_step, cfg.release_lower)
+        reach = step + cfg.release_gap
+        while step > 0.0:
+            lowering = False
             for a in arms:
                 g = run.pad_gaps(a)
                 f = int(np.argmin(g))
-                reach = step + cfg.release_gap
                 if (g[f] >= cfg.release_gap or g[1 - f] < reach or lowered[a] + step > cfg.release_lower + 1e-9
                         or run.part_side(a, f) >= 0.0 or run.pads_room(a, reach)[f] < reach):  # fmt: skip
                     continue
                 x = d.site_xmat[scene.tcp_sites[a]].reshape(3, 3)[:, 0]
                 release_shift[a] += (run.pad_outward(a, f) @ x) * step
                 lowered[a] += step
-                lowering.append(a)
+                lowering = True
             if not lowering:
                 break
             q_rel = run.shifted(qv[-1], release_shift)

@@ -235,7 +235,9 @@ def track_video(
         calib = [[] for _ in range(obsr.fingertips.num_hands)]
         offset = np.full(obsr.fingertips.num_hands, np.nan)
         w_first = w_rest = w
-        if config.still_root and tm.num_parts > 1:  # the root solved on frame 0 only
+        if config.still_root and tm.num_parts > 1:
+            # the root solved on frame 0 only; both carry a `part_step` array so that the
+            # per-frame solve keeps one pytree structure (one compilation)
             w_first, w_rest = _held_root(w, tm.num_parts, False), _held_root(w, tm.num_parts, True)
         bar = tqdm(range(demo.num_frames), desc=desc, disable=not progress)
         for t in bar:
@@ -357,7 +359,8 @@ def track_video(
         rng = np.random.default_rng(config.seed)
         B = min(config.smooth_batch, demo.num_frames)
         sw = jnp.asarray(config.smooth_weight, jnp.float32)
-        w_sm = _held_root(w, tm.num_parts, True) if config.still_root and tm.num_parts > 1 else w
+        # the update's scale per part and coordinate (the root's 0 with `still_root`)
+        scale = w.step_scale * (_held_root(w, tm.num_parts, True).part_step[:, None] if config.still_root and tm.num_parts > 1 else 1.0)
         step_s: list[float] = []
         for it in tqdm(range(config.smooth_iters), desc="smooth", disable=not progress):
             frames = jnp.asarray(rng.choice(demo.num_frames, B, replace=False), jnp.int32)
@@ -367,8 +370,7 @@ def track_video(
             step_s.append(time.perf_counter() - ts)
             g = jnp.where(jnp.isfinite(g), g, 0.0)
             upd, state = opt.update(g, state)
-            held = 1.0 if w_sm.part_step is None else w_sm.part_step[:, None]
-            delta = optax.apply_updates(delta, upd * w.step_scale * held)
+            delta = optax.apply_updates(delta, upd * scale)
         T_stack = compose_update(T_stack, delta, tm.part_pivots)
         timings["smooth_compile_s"] = _first_call_excess(step_s)
     timings["smooth_s"] = time.perf_counter() - t_sm
