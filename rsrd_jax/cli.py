@@ -192,7 +192,8 @@ def cmd_track(a: argparse.Namespace) -> int:
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
                       slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis,
-                      separable_motion=a.w_motion_separable, still_root=a.still_root)  # fmt: skip
+                      separable_motion=a.w_motion_separable, still_root=a.still_root, still_root_first=a.still_root_first,
+                      slide_baseline="joint" if a.still_root else "first")  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
     traj = track_video(model, demo, cfg, init, occluder, mono, separable=a.separable, fingertips=fingertips)
     save_trajectory(traj, out)
@@ -485,7 +486,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "rsrd-jax demo: 3.0)")  # fmt: skip
     tr.add_argument("--still-root", action="store_true",
                     help="hold the root (part 0) at its frame-0 pose: a still camera and an object resting where it "
-                         "stands (TrackConfig.still_root)")  # fmt: skip
+                         "stands (TrackConfig.still_root; with --joints from the second pass on, and slide "
+                         "hypotheses compared with a pass on the joint point, slide_baseline='joint')")  # fmt: skip
+    tr.add_argument("--still-root-first", action="store_true",
+                    help="with --still-root and --joints: hold the root in the first pass too, which the joints are "
+                         "fitted from (TrackConfig.still_root_first)")  # fmt: skip
     tr.add_argument("--roi-size", type=int, default=224, help="ROI crop side in pixels")
     tr.add_argument("--steps", type=int, default=50, help="Adam steps per frame")
     tr.add_argument("--smooth-iters", type=int, default=30, help="joint smoothing iterations (0: off)")

@@ -96,13 +96,17 @@ class PipelineConfig:
     usb_plug (robot trials' build, the one separable studio object, so the value is fitted to
     it): object-frame ADD 11.35 mm at `track_motion` (0.1), 7.59 at 0.3, 5.81 at 1, 4.45 at 3,
     10.84 at 10 (the brick 1.7 mm, but the plug lags its pull: 20.0 mm)."""
-    track_still_root: bool = False
-    """`TrackConfig.still_root`: the root held at its frame-0 pose (the studio's camera is still
-    and its roots never move). Off for now: on 10 of the 11 robot-trial builds (session 48,
-    `experiments/results/tracking_pipeline_s48_still_root.md`) mean object-frame ADD 3.18 mm
-    against 3.82, but nerf_gun's slide is lost (9.58 mm) and led_light's panel 2.4 → 9.9 mm;
-    with `TrackConfig.slide_baseline="joint"` too, nerf_gun 1.22 mm and the mean 2.34 mm,
-    led_light the one regression. The robot trials are not yet re-run with it."""
+    track_still_root: bool = True
+    """`TrackConfig.still_root`: the root held at its frame-0 pose from the joint discovery's
+    second pass on (the studio's camera is still and its roots never move; the first pass,
+    which the joints are fitted from, tracks it freely: `TrackConfig.still_root_first`). See
+    `track_slide_baseline`, which it needs, and README's tracking results (session 49)."""
+    track_slide_baseline: str = "joint"
+    """`TrackConfig.slide_baseline`. With the root held in the second pass the first pass, whose
+    root moves freely, is no baseline for the slide hypotheses: "joint" compares them with a pass
+    on the joint point that holds the root too (one pass more where a part has slide candidates).
+    Session 48 (root held in the first pass as well): nerf_gun's slide lost to the first pass
+    (9.58 mm), with "joint" it won (1.22 mm)."""
     init_iters: int = 80
     """Tracking initialisation iterations per seed."""
     plan_collision_margin: float = 0.003
@@ -196,7 +200,7 @@ class PipelineConfig:
 
         return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
                            hinge_axes=self.track_hinge_axes, lr_start=self.track_lr_start, separable_motion=self.track_motion_separable,
-                           still_root=self.track_still_root,
+                           still_root=self.track_still_root, slide_baseline=self.track_slide_baseline,
                            weights=LossWeights(motion=self.track_motion, hand_depth=self.track_hand_depth if self.track_hands else 0.0))  # fmt: skip
 
 

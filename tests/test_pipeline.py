@@ -321,8 +321,8 @@ def test_cli_track_refuses_a_negative_or_nan_separable_motion_weight(tmp_path, c
 def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch, still):
     """`--w-motion-separable` reaches `TrackConfig.separable_motion` and `--still-root`
     `TrackConfig.still_root` (off without it; checked where `track_video` is called; the model
-    loader is stubbed to stop there); `PipelineConfig.track_still_root` reaches the pipeline's
-    `TrackConfig`."""
+    loader is stubbed to stop there) with `slide_baseline="joint"`; `PipelineConfig.track_still_root`
+    reaches the pipeline's `TrackConfig`, whose slide baseline is "joint"."""
     from rsrd_jax.pipeline import PipelineConfig
 
     import rsrd_jax.track as T
@@ -344,4 +344,7 @@ def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch, still)
         cli.main(["track", str(tmp_path / "m"), str(tmp_path / "v.mp4"), "--out", str(tmp_path / "t"), "--occluder", "none",
                   "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5", *(["--still-root"] if still else [])])  # fmt: skip
     assert seen["cfg"].separable_motion == 2.5 and seen["cfg"].still_root is still
+    # a held root compares the slide hypotheses with a pass that holds it too
+    assert seen["cfg"].slide_baseline == ("joint" if still else "first") and seen["cfg"].still_root_first is False
     assert PipelineConfig(track_still_root=still).track_config().still_root is still
+    assert PipelineConfig().track_config().slide_baseline == "joint"

@@ -345,6 +345,11 @@ class TrackConfig(eqx.Module):
     4.78 → 9.58 (its slide lost to the first pass, which does not stand for the hinge when the
     root is held: with `slide_baseline="joint"` too, 1.22 and the mean 2.34 mm) and led_light
     2.13 → 5.03 (the panel's joint point fitted 13 mm off): not the default yet."""
+    still_root_first: bool = False
+    """With `still_root`: the joint discovery's first pass (`joints`) holds the root too. Off:
+    the first pass tracks the root freely, so that a drift common to every part (the tracker's
+    bias, not a joint's motion) stays out of the fitted joint points and axes; the root is held
+    from the second pass on."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 

@@ -113,6 +113,10 @@ def initialize_demo(
     Returns:
         (`T_cam_obj` on frame 0, the initialiser's diagnostics with `init_s`, the wall time).
     """
+    if config.joints and config.slides and config.still_root and not config.still_root_first and config.slide_baseline == "first":
+        raise ValueError("TrackConfig.still_root holds the root from the second pass on, and slide_baseline='first' would "
+                         "compare the slide hypotheses with the first pass, whose root moves freely: use "
+                         "slide_baseline='joint' (or still_root_first=True)")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     t0 = time.perf_counter()
@@ -221,7 +225,7 @@ def track_video(
     compile_s = [0.0]  # first-call excess of the jitted per-frame solve (compilation), all passes
     pool = worker_pool() if config.parallel_starts else None
 
-    def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis):
+    def per_frame_pass(tm, w, key, desc, record=True, lrs=lrs, vh=config.velocity_hypothesis, hold_root=config.still_root):
         T_parts: list[jaxlie.SE3] = []
         obs_all, residual, visible, losses, data, logged = [], [], [], [], [], []
         switched = 0  # frames where the second start won
@@ -235,7 +239,7 @@ def track_video(
         calib = [[] for _ in range(obsr.fingertips.num_hands)]
         offset = np.full(obsr.fingertips.num_hands, np.nan)
         w_first = w_rest = w
-        if config.still_root and tm.num_parts > 1:
+        if hold_root and tm.num_parts > 1:
             # the root solved on frame 0 only; both carry a `part_step` array so that the
             # per-frame solve keeps one pytree structure (one compilation)
             w_first, w_rest = _held_root(w, tm.num_parts, False), _held_root(w, tm.num_parts, True)
@@ -440,9 +444,12 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
                                                                     jnp.asarray(config.joint_first_motion, jnp.float32)))  # fmt: skip
     steps = config.joint_first_steps or config.steps_per_frame
     lrs_a = lr_schedule(config.lr_start, config.lr_end, steps)
-    first = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False, lrs=lrs_a)
+    first = per_frame_pass(tm_a, w_a, key, "track (joint pass)", record=False, lrs=lrs_a,
+                           hold_root=config.still_root and config.still_root_first)
     key = first.key
     T_a = np.stack([np.asarray(T.wxyz_xyz) for T in first.T_parts])
+    # how far the first pass moved the root's centroid from its frame-0 place (0 when it held it)
+    root_moved = float(np.linalg.norm(T_a[:, 0, 4:] - T_a[:1, 0, 4:], axis=-1).max()) if len(T_a) else 0.0
     # second pass: jointed parts tied only at their joint; others keep the weak band
     weak = config.joint_first_arap / max(float(config.weights.arap), 1e-12)
     pw = np.where(is_slot, 0.0, weak).astype(np.float32)
@@ -540,6 +547,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
             jnp.asarray([[k, nb] for k, nb, _, _ in hinges], jnp.int32), jnp.asarray([a for _, _, a, _ in hinges], jnp.float32),
             jnp.asarray([r for *_, r in hinges], jnp.float32), jnp.ones(len(hinges), jnp.float32)))  # fmt: skip
     info["hinges_ruled_out_by_hand"] = sorted(hinge_out)
+    info["first_root_moved_mm"] = round(1e3 * root_moved, 3)
     return tm_b, info, key, candidates, first
 
 
