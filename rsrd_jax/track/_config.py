@@ -335,21 +335,23 @@ class TrackConfig(eqx.Module):
     session 36), 0.34 s with 1.25."""
     still_root: bool = False
     """Hold the root (part 0) at the pose frame 0's solve gives it for the rest of the video
-    (its updates are zero from frame 1 on, in the per-frame passes and the smoothing): the
-    camera is still and the object rests where it stands, so only the other parts move (the
-    studio's demos; RSRD's object on a table). Off: every part, the root too, is tracked in
-    the object frame, and a root the tracker pulls along with a moved part drifts (the studio
-    roots' tracks moved 3–12 mm; toy_drawer's cabinet 12.4 mm along its pulled drawer). On 10 of
-    the robot trials' 11 builds (session 48, the pipeline's settings) mean object-frame ADD 3.82
-    → 3.18 mm, every root 0.17–0.95 mm, bear 5.64 → 2.03, scissors 4.68 → 1.13, but nerf_gun
-    4.78 → 9.58 (its slide lost to the first pass, which does not stand for the hinge when the
-    root is held: with `slide_baseline="joint"` too, 1.22 and the mean 2.34 mm) and led_light
-    2.13 → 5.03 (the panel's joint point fitted 13 mm off): not the default yet."""
+    (its updates are zero from frame 1 on, in the per-frame passes and the smoothing; with
+    `joints` from the second pass on, see `still_root_first`): the camera is still and the
+    object rests where it stands, so only the other parts move (the studio's demos; RSRD's
+    object on a table). Off: every part, the root too, is tracked in the object frame, and a
+    root the tracker pulls along with a moved part drifts (the studio roots' first passes moved
+    them 3–18 mm; toy_drawer's cabinet 12.4 mm along its pulled drawer). With `joints` it needs
+    `slide_baseline="joint"` (the free first pass is no baseline for hypotheses that hold the
+    root; refused otherwise). The pipeline's default (`PipelineConfig.track_still_root`). On the
+    robot trials' 11 builds (session 49, `experiments/results/tracking_pipeline_s49.md`) mean
+    object-frame ADD 3.94 → 2.17 mm, every root 0.05–0.85 mm, toy_drawer 3.90 → 1.03, nerf_gun
+    4.78 → 1.24, sunglasses 6.07 → 2.66, bear 5.64 → 2.30; led_light 2.13 → 3.81 (its panel's
+    joint point lies 15 mm off the hinge: a free root's drift absorbed that)."""
     still_root_first: bool = False
-    """With `still_root`: the joint discovery's first pass (`joints`) holds the root too. Off:
-    the first pass tracks the root freely, so that a drift common to every part (the tracker's
-    bias, not a joint's motion) stays out of the fitted joint points and axes; the root is held
-    from the second pass on."""
+    """With `still_root` and `joints`: the joint discovery's first pass holds the root too. Off:
+    the first pass tracks the root freely, so that a drift common to every part is not read as a
+    joint's motion; the root is held from the second pass on. On (session 48's `still_root`):
+    led_light's panel joint point 28 mm off the hinge (15 mm free), ADD 5.09 mm (3.81 free)."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 

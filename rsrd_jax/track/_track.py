@@ -113,10 +113,6 @@ def initialize_demo(
     Returns:
         (`T_cam_obj` on frame 0, the initialiser's diagnostics with `init_s`, the wall time).
     """
-    if config.joints and config.slides and config.still_root and not config.still_root_first and config.slide_baseline == "first":
-        raise ValueError("TrackConfig.still_root holds the root from the second pass on, and slide_baseline='first' would "
-                         "compare the slide hypotheses with the first pass, whose root moves freely: use "
-                         "slide_baseline='joint' (or still_root_first=True)")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     t0 = time.perf_counter()
@@ -166,6 +162,10 @@ def track_video(
         raise ValueError(f"TrackConfig.rebin_every must be ≥ 1, got {config.rebin_every}")
     if config.slide_baseline not in ("first", "joint"):
         raise ValueError(f"TrackConfig.slide_baseline must be 'first' or 'joint', got {config.slide_baseline!r}")
+    if config.joints and config.slides and config.still_root and not config.still_root_first and config.slide_baseline == "first":
+        raise ValueError("TrackConfig.still_root holds the root from the second pass on, and slide_baseline='first' would "
+                         "compare the slide hypotheses with the first pass, whose root moves freely: use "
+                         "slide_baseline='joint' (or still_root_first=True)")
     if demo.num_frames < 1:
         raise ArtefactError(f"{demo.video_path}: the demo has no frames")
     f = np.asarray(demo.frames)
