@@ -449,7 +449,7 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
     key = first.key
     T_a = np.stack([np.asarray(T.wxyz_xyz) for T in first.T_parts])
     # how far the first pass moved the root's centroid from its frame-0 place (0 when it held it)
-    root_moved = float(np.linalg.norm(T_a[:, 0, 4:] - T_a[:1, 0, 4:], axis=-1).max()) if len(T_a) else 0.0
+    root_moved = float(np.linalg.norm(T_a[:, 0, 4:] - T_a[:1, 0, 4:], axis=-1).max())
     # second pass: jointed parts tied only at their joint; others keep the weak band
     weak = config.joint_first_arap / max(float(config.weights.arap), 1e-12)
     pw = np.where(is_slot, 0.0, weak).astype(np.float32)
