@@ -191,7 +191,8 @@ def cmd_track(a: argparse.Namespace) -> int:
                           hand=a.w_hand, motion=a.w_motion, hand_depth=a.w_hand_depth)  # fmt: skip
     cfg = TrackConfig(weights=weights, roi_size=a.roi_size, steps_per_frame=a.steps, smooth_iters=a.smooth_iters,
                       max_gaussians=a.max_gaussians, lod_cells=a.lod_cells, seed=a.seed, joints=a.joints,
-                      slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes, velocity_hypothesis=a.velocity_hypothesis,
+                      slides=not a.no_slides, slide_held_only=not a.slides_unheld, hinge_axes=a.hinge_axes,
+                      hinge_refine_deg=a.hinge_refine, velocity_hypothesis=a.velocity_hypothesis,
                       separable_motion=a.w_motion_separable, still_root=a.still_root, still_root_first=a.still_root_first,
                       slide_baseline="joint" if a.still_root else "first")  # fmt: skip
     init = InitConfig(yaw_seeds=a.yaw_seeds, distance_m=a.distance, iters=a.init_iters)
@@ -512,6 +513,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --joints and --hands: slide hypotheses also for parts no hand held (default: held parts only)")
     tr.add_argument("--hinge-axes", action="store_true",
                     help="with --joints: each jointed part turns about a fitted hinge axis (no roll about its own length)")
+    tr.add_argument("--hinge-refine", type=float, default=None, metavar="DEG",
+                    help="with --hinge-axes: turn each hinge axis from its candidate (a principal axis or the table "
+                         "normal) toward the first pass's motion by up to DEG degrees")  # fmt: skip
     tr.add_argument("--velocity-hypothesis", type=float, default=None,
                     help="a second start per frame extrapolated with this velocity factor (e.g. 1.0); the lower loss wins (2× time)")
     tr.add_argument("--separable", action=argparse.BooleanOptionalAction, default=None,

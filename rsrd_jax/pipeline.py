@@ -73,6 +73,9 @@ class PipelineConfig:
     (session 24, `experiments/results/hinge_axes_s24.md`: scissors 7.85 → 4.66 mm, wire_cutter
     7.64 → 4.77; robot trials wire_cutter 10/10 (6/10 in session 22), frog
     6/10 (0/10 on the same build without))."""
+    track_hinge_refine_deg: float | None = None
+    """`TrackConfig.hinge_refine_deg`: the hinge axis turned from its candidate toward the first
+    pass's motion by up to this angle (degrees); None keeps the candidate."""
     track_hands: bool = True
     """Tracking's hand term (`LossWeights.hand`) with the studio's 2D fingertips (an oracle for a
     2D hand detector, `track.StudioFingertips`): each hand's pinched part point follows the
@@ -199,7 +202,8 @@ class PipelineConfig:
         from .track import LossWeights, TrackConfig
 
         return TrackConfig(steps_per_frame=self.track_steps, roi_size=self.track_roi, seed=self.seed, joints=self.track_joints,
-                           hinge_axes=self.track_hinge_axes, lr_start=self.track_lr_start, separable_motion=self.track_motion_separable,
+                           hinge_axes=self.track_hinge_axes, hinge_refine_deg=self.track_hinge_refine_deg,
+                           lr_start=self.track_lr_start, separable_motion=self.track_motion_separable,
                            still_root=self.track_still_root, slide_baseline=self.track_slide_baseline,
                            weights=LossWeights(motion=self.track_motion, hand_depth=self.track_hand_depth if self.track_hands else 0.0))  # fmt: skip
 

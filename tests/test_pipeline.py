@@ -319,7 +319,8 @@ def test_cli_track_refuses_a_negative_or_nan_separable_motion_weight(tmp_path, c
 
 @pytest.mark.parametrize("still", [False, True])
 def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch, still):
-    """`--w-motion-separable` reaches `TrackConfig.separable_motion` and `--still-root`
+    """`--w-motion-separable` reaches `TrackConfig.separable_motion`, `--hinge-refine`
+    `TrackConfig.hinge_refine_deg` (and `PipelineConfig.track_hinge_refine_deg` the pipeline's), and `--still-root`
     `TrackConfig.still_root` (off without it; checked where `track_video` is called; the model
     loader is stubbed to stop there) with `slide_baseline="joint"`; `PipelineConfig.track_still_root`
     reaches the pipeline's `TrackConfig`, whose slide baseline is "joint"."""
@@ -342,8 +343,11 @@ def test_cli_track_takes_a_separable_motion_weight(tmp_path, monkeypatch, still)
     monkeypatch.setattr("rsrd_jax.io.read_demo", lambda v, c=None: object())
     with pytest.raises(Stop):
         cli.main(["track", str(tmp_path / "m"), str(tmp_path / "v.mp4"), "--out", str(tmp_path / "t"), "--occluder", "none",
-                  "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5", *(["--still-root"] if still else [])])  # fmt: skip
+                  "--mono-depth", "none", "--hands", "none", "--w-motion-separable", "2.5", *(["--still-root"] if still else []),
+                  *(["--hinge-refine", "12.5"] if still else [])])  # fmt: skip
     assert seen["cfg"].separable_motion == 2.5 and seen["cfg"].still_root is still
+    assert seen["cfg"].hinge_refine_deg == (12.5 if still else None)
+    assert PipelineConfig(track_hinge_refine_deg=7.0).track_config().hinge_refine_deg == 7.0
     # a held root compares the slide hypotheses with a pass that holds it too
     assert seen["cfg"].slide_baseline == ("joint" if still else "first") and seen["cfg"].still_root_first is False
     assert PipelineConfig(track_still_root=still).track_config().still_root is still

@@ -190,6 +190,9 @@ def test_rebinning_every_few_steps_tracks_as_binning_every_step(studio):
     for bad in (0, -1):
         with pytest.raises(ValueError, match="rebin_every"):
             run(dataclasses.replace(cfg, rebin_every=bad))
+    for bad in (0.0, 90.0, float("nan")):  # refused before any work, as the other options
+        with pytest.raises(ValueError, match="hinge_refine_deg"):
+            run(dataclasses.replace(cfg, hinge_refine_deg=bad))
 
 
 def test_render_budgets_too_small_for_a_frame_are_widened_and_the_frame_solved_again(studio, monkeypatch):
@@ -728,8 +731,8 @@ def test_a_still_root_is_tracked_freely_in_the_joint_pass_unless_asked(studio, f
     """`TrackConfig.still_root_first`: with joint discovery, the first pass (which the joint points
     and axes are fitted from) tracks the root freely by default, so that a drift common to all
     parts is not read as a joint's motion (`joints["first_root_moved_mm"]` > 0; the studio's
-    led_light: the panel's joint point 28 mm off its hinge line when the first pass held the
-    root, 15 mm when free), and holds it with `still_root_first` (0 mm); the final trajectory
+    led_light: the panel's joint point 17.3 mm off its hinge line when the first pass held the
+    root, 1.5 mm when free), and holds it with `still_root_first` (0 mm); the final trajectory
     holds the root at its frame-0 pose either way; with the free first pass as the slides'
     baseline (`slide_baseline="first"`) it refuses to track."""
     root, model, ext = studio

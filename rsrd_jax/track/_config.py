@@ -116,6 +116,19 @@ class TrackConfig(eqx.Module):
     (90 frames, the robot trials' build): the front leg's tilted minor principal axis (19° off
     the true vertical hinge) beat the table normal by 8.54 against 8.55 mm, and the tracked leg
     turned 28° of 40° with a 9° roll."""
+    hinge_refine_deg: float | None = None
+    """With `hinge_axes`: the chosen candidate axis is then turned, by at most this many degrees,
+    to the direction whose turns best explain the first pass's point motion (`hinge_axis`'s
+    `refine_deg`; `meta["joints"][k]["hinge_refined_deg"]` says by how much). A hinge need not
+    lie along a principal axis of the part's Gaussians: the studio led_light's panel (its tab and
+    knobs off-centre) has its first axis 5° off the hinge, and the panel, turning about it with
+    the root held, overshot to 113.9° at frame 80 (90° true; panel 7.08 mm); refined within 15°
+    the axis turned 2.4° (3.7° from the truth) and the panel ends at 100.3°, 3.78 mm (object
+    2.18 mm against 3.81). But the first pass's motion is not always nearer the truth than the
+    candidate: the stapler's arm axis turned 10.7° (object 0.73 → 2.20 mm; within 5°: 1.29 mm),
+    wire_cutter's the full 15° (4.52 → 4.05 mm, still about the wrong axis). Session 50, the
+    robot trials' builds, the pipeline's settings otherwise. None (the default): the candidate
+    as chosen."""
     hinge_hands: bool = True
     """With `hinge_axes` and a fingertip source: where a hand held a hinged part (or its
     neighbour) in the first pass, the hinge candidates are also scored by how well turns about
@@ -345,13 +358,18 @@ class TrackConfig(eqx.Module):
     root; refused otherwise). The pipeline's default (`PipelineConfig.track_still_root`). On the
     robot trials' 11 builds (session 49, `experiments/results/tracking_pipeline_s49.md`) mean
     object-frame ADD 3.94 → 2.17 mm, every root 0.05–0.85 mm, toy_drawer 3.90 → 1.03, nerf_gun
-    4.78 → 1.24, sunglasses 6.07 → 2.66, bear 5.64 → 2.30; led_light 2.13 → 3.81 (its panel's
-    joint point lies 15 mm off the hinge: a free root's drift absorbed that)."""
+    4.78 → 1.24, sunglasses 6.07 → 2.66, bear 5.64 → 2.30; led_light 2.13 → 3.81: its panel's
+    joint point lies 1.5 mm off the hinge line (session 50; session 49 misreported 15 mm), but the
+    held root stays where frame 0's solve put it, 14.4 mm too far from the camera and 1.9° off,
+    and the panel, tied to it, turns to 113.9° at frame 80 (90° true; with the root free it drifted
+    4.3 mm and the panel turned 91.8° relative to it)."""
     still_root_first: bool = False
     """With `still_root` and `joints`: the joint discovery's first pass holds the root too. Off:
     the first pass tracks the root freely, so that a drift common to every part is not read as a
     joint's motion; the root is held from the second pass on. On (session 48's `still_root`):
-    led_light's panel joint point 28 mm off the hinge (15 mm free), ADD 5.09 mm (3.81 free)."""
+    led_light's first pass turned the panel 65.5° of 90° and its joint point came out 17.3 mm off
+    the hinge line (1.5 mm with the root free; session 50, where session 49 had misreported 28
+    and 15 mm), ADD 5.09 mm (3.81 free)."""
     seed: int = 0
     """PRNG seed (pair sampling, Gaussian subset)."""
 

@@ -160,6 +160,8 @@ def track_video(
         raise ValueError(f"TrackConfig.render_headroom must be a finite number ≥ 1, got {config.render_headroom}")
     if config.rebin_every < 1:
         raise ValueError(f"TrackConfig.rebin_every must be ≥ 1, got {config.rebin_every}")
+    if config.hinge_refine_deg is not None and not 0.0 < config.hinge_refine_deg < 90.0:  # also refuses NaN
+        raise ValueError(f"TrackConfig.hinge_refine_deg must be None or degrees in (0, 90), got {config.hinge_refine_deg}")
     if config.slide_baseline not in ("first", "joint"):
         raise ValueError(f"TrackConfig.slide_baseline must be 'first' or 'joint', got {config.slide_baseline!r}")
     if config.joints and config.slides and config.still_root and not config.still_root_first and config.slide_baseline == "first":
@@ -487,7 +489,10 @@ def _discover_joints(tm: TrackModel, neighbour: dict[int, int], w: Weights, conf
                                                   hands.T_cam_obj, hands.intrinsics, hands.pinch_uv[:, h], f, cand)  # fmt: skip
                     info[str(k)]["hinge_hand_px"] = np.round(hand_px, 2).tolist()
             a, rms = hinge_axis(T_a, cents, k, nb, X, part, cand, prefer_last=0.0 if up is None else config.hinge_up_tolerance,
-                                hand_px=hand_px)  # fmt: skip
+                                hand_px=hand_px, refine_deg=config.hinge_refine_deg)  # fmt: skip
+            if config.hinge_refine_deg:  # how far the refinement turned the chosen candidate
+                cu = cand / np.linalg.norm(cand, axis=1, keepdims=True)
+                info[str(k)]["hinge_refined_deg"] = round(float(np.degrees(np.arccos(min(1.0, float(np.max(np.abs(cu @ a))))))), 2)
             if hand_px is not None:
                 hand_ref[k] = (h, held, other, f, float(hand_px[int(np.argmax(np.abs(cand @ a)))]))
             hinges.append((k, nb, a, radius))
