@@ -95,6 +95,9 @@ def test_bad_inputs(studio, tmp_path):
     empty = dataclasses.replace(demo, frames=demo.frames[:0])
     with pytest.raises(ArtefactError, match="no frames"):
         track_video(model, empty, TINY, TINY_INIT, extractor=ext, progress=False)
+    for bad in (0.0, 90.0, float("nan")):  # an option out of range, refused before any work
+        with pytest.raises(ValueError, match="hinge_refine_deg"):
+            track_video(model, demo, dataclasses.replace(TINY, hinge_refine_deg=bad), TINY_INIT, extractor=ext, progress=False)
     with pytest.raises(ArtefactError, match="hand masks not found"):
         StudioHandMasks(tmp_path)
     with pytest.raises(ArtefactError, match="trajectory not found"):
@@ -190,9 +193,6 @@ def test_rebinning_every_few_steps_tracks_as_binning_every_step(studio):
     for bad in (0, -1):
         with pytest.raises(ValueError, match="rebin_every"):
             run(dataclasses.replace(cfg, rebin_every=bad))
-    for bad in (0.0, 90.0, float("nan")):  # refused before any work, as the other options
-        with pytest.raises(ValueError, match="hinge_refine_deg"):
-            run(dataclasses.replace(cfg, hinge_refine_deg=bad))
 
 
 def test_render_budgets_too_small_for_a_frame_are_widened_and_the_frame_solved_again(studio, monkeypatch):

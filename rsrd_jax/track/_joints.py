@@ -267,9 +267,9 @@ def hinge_axis(T_obj_part: np.ndarray, centroids: np.ndarray, k: int, nb: int, p
 
 
 def _refine_axis(axis_rms, a0: np.ndarray, max_deg: float) -> np.ndarray:
-    """The unit axis within `max_deg` of `a0` (its sign kept) that minimises `axis_rms` (a
-    Nelder–Mead search over the two tilts of `a0`, which is returned unless another direction
-    has a lower residual)."""
+    """The unit axis within `max_deg` of `a0` that minimises `axis_rms`: a Nelder–Mead search over
+    the two tilts of `a0`, whose first simplex vertex is `a0` itself (the search returns its
+    best vertex, so never a direction with a higher residual than `a0`)."""
     from scipy.optimize import minimize
 
     u = np.cross(a0, [1.0, 0.0, 0.0] if abs(a0[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -284,8 +284,7 @@ def _refine_axis(axis_rms, a0: np.ndarray, max_deg: float) -> np.ndarray:
 
     res = minimize(lambda x: axis_rms(axis(x)), np.zeros(2), method="Nelder-Mead",
                    options=dict(xatol=1e-4, fatol=1e-8, maxiter=200, initial_simplex=[[0, 0], [lim / 4, 0], [0, lim / 4]]))  # fmt: skip
-    a = axis(res.x)
-    return a if axis_rms(a) < axis_rms(a0) else a0
+    return axis(res.x)
 
 
 
