@@ -278,24 +278,95 @@ def test_open_pads_must_clear_the_grasped_part_on_the_way_in(robot):
     """A top-down grasp of the 4 cm cube rolled 45° about the approach axis: the fully open jaw
     (pads 24 mm from the centre) cannot pass the cube's vertical edges (28 mm from it), so on
     the way in the pads cut through them. With ``approach_pads_clear_part`` the approach is
-    rejected (``pads_on_part``); without it the same grasp plans. MuJoCo's own box–box distance
+    rejected (``pads_on_part``); without it the same grasp plans. (The open pads also end inside
+    the cube, so with ``approach_grasp_pads_margin``, the default, the grasp never seats: it is
+    off here.) MuJoCo's own box–box distance
     between the posed pads and the cube confirms the overlap at the approach's second-to-last
     waypoint; the unrolled grasp of a 3 cm cube (9 mm gaps) passes the check."""
     traj = _trajectory()
     down = jaxlie.SO3.from_x_radians(np.pi) @ jaxlie.SO3.from_z_radians(np.pi / 4)
     g = _grasps(1, 0)
     g = dataclasses.replace(g, T_part_grasp=jnp.asarray(jaxlie.SE3.from_rotation(down).wxyz_xyz, jnp.float32)[None])
-    strict = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=CFG)
+    assert plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=CFG).info["rejections"]["grasp_collision"] == 1
+    cfg = dataclasses.replace(CFG, approach_grasp_pads_margin=None)
+    strict = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g}, config=cfg)
     assert strict.result == PlanResult.approach, strict.message
     assert strict.info["attempts"][0]["approach_rejections"] == {"pads_on_part": 1}
     assert strict.info["attempts"][0]["approach_pads_to_part_best"] < 0
     loose = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: g},
-                       config=dataclasses.replace(CFG, approach_pads_clear_part=False))  # fmt: skip
+                       config=dataclasses.replace(cfg, approach_pads_clear_part=False))  # fmt: skip
     assert loose.success, loose.message
     T_cube = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ)) @ jaxlie.SE3(jnp.asarray(traj[0, 0]))).wxyz_xyz)
     assert _right_pads_to_box(robot, (0.02, 0.02, 0.02), T_cube)(loose.q_approach[-2]) < 0.0
     ok = plan_robot(robot, [_cube(0.015)], traj, T_ROBOT_OBJ, grasps={0: _grasps(1, 0, 0.03)}, config=CFG)
     assert ok.success and ok.info["attempts"][0]["approach_pads_to_part_best"] >= CFG.collision_margin
+
+
+def _box_surface(c, h, n, rng):
+    p = rng.uniform(-h, h, (n, 3))
+    face = rng.integers(0, 3, n)
+    p[np.arange(n), face] = np.sign(rng.standard_normal(n)) * h[face]
+    return p + c
+
+
+def _panel_on_stand(seed=0):
+    """led_light's shape: part 1 a 60 × 60 × 10 mm panel (y ∈ [0, 60] mm, z ∈ ±5 mm) with a 30 mm
+    wide, 20 mm long, 6 mm thick tab sticking out of its y = 0 edge at mid-height; part 0 a 20 mm
+    stand under the panel only (z ∈ [−25, −5] mm), each in its part frame (the object frame's
+    (0, 0, 0.12) at rest). Returns both point sets, the trajectory (the stand still, the panel
+    lifted and slid away as `_trajectory`) and the panel's (centre, half-sizes)."""
+    rng = np.random.default_rng(seed)
+    panel = (np.array([0.0, 0.03, 0.0]), np.array([0.03, 0.03, 0.005]))
+    tab = (np.array([0.0, -0.01, 0.0]), np.array([0.015, 0.01, 0.003]))
+    inside = lambda p, c, h: np.all(np.abs(p - c) < h - 1e-6, axis=1)  # noqa: E731
+    a, b = _box_surface(*panel, 2500, rng), _box_surface(*tab, 1500, rng)
+    part = np.concatenate([a[~inside(a, *tab)], b[~inside(b, *panel)]])  # the union's surface
+    stand = _box_surface(np.array([0.0, 0.03, -0.015]), np.array([0.03, 0.03, 0.01]), 2500, rng)
+    moving = _trajectory()
+    still = np.tile(np.array([1.0, 0, 0, 0, 0, 0, 0.12]), (len(moving), 1, 1))
+    return [stand, part], np.concatenate([still, moving], 1), panel
+
+
+def test_open_pads_must_not_end_inside_the_grasped_part(robot):
+    """A top-down pinch across the tab's 30 mm width, 8 mm out from the panel (led_light): the
+    stand under the panel makes it seat 16 mm back (the pads' tips 4 mm below the tab's
+    mid-plane, 1 mm above the stand), where the fully open pads (25 mm wide) reach 4.5 mm over the
+    panel's edge with their tips below its top face, though one approach step earlier they are
+    11 mm above it. With ``approach_grasp_pads_margin`` the grasp never seats; with it but without the seating
+    check (``seat_approach_opening`` off) the approach is rejected (``pads_in_part_at_grasp``);
+    without it the grasp plans, and MuJoCo's own box–box distance between the posed pads and the
+    panel confirms that the pads end inside the panel and not one waypoint earlier. The same pinch
+    at the tab's far end (pads 7.5 mm clear of the panel) plans, clear in MuJoCo too."""
+    parts, traj, (c_panel, h_panel) = _panel_on_stand()
+    cfg = dataclasses.replace(CFG, parts=(1,))
+    down = jaxlie.SO3.from_x_radians(np.pi)  # approach along −z, the jaw's axis along the tab's width (x)
+
+    def pinch(y):  # the grasp centre on the tab's mid-plane, as sampled grasps lie
+        g = _grasps(1, 0, 0.03)
+        T = jaxlie.SE3.from_rotation_and_translation(down, jnp.asarray([0.0, y, 0.0])).wxyz_xyz
+        return {1: dataclasses.replace(g, T_part_grasp=jnp.asarray(T, jnp.float32)[None])}
+
+    T_panel = np.asarray((jaxlie.SE3(jnp.asarray(T_ROBOT_OBJ, jnp.float32)) @ jaxlie.SE3(jnp.asarray(traj[0, 1], jnp.float32))
+                          @ jaxlie.SE3.from_translation(jnp.asarray(c_panel, jnp.float32))).wxyz_xyz)  # fmt: skip
+    to_panel = _right_pads_to_box(robot, tuple(h_panel), T_panel)
+    assert PlanConfig().approach_grasp_pads_margin == -0.001  # the default
+    near = plan_robot(robot, parts, traj, T_ROBOT_OBJ, grasps=pinch(-0.008), config=cfg)
+    assert not near.success and near.info["rejections"]["grasp_collision"] == 1, near.message
+    late = plan_robot(robot, parts, traj, T_ROBOT_OBJ, grasps=pinch(-0.008),
+                      config=dataclasses.replace(cfg, seat_approach_opening=False))  # fmt: skip
+    assert late.result == PlanResult.approach, late.message
+    assert late.info["attempts"][0]["approach_rejections"] == {"pads_in_part_at_grasp": 1}
+    assert late.info["attempts"][0]["approach_pads_at_grasp_best"] < cfg.approach_grasp_pads_margin
+    loose = plan_robot(robot, parts, traj, T_ROBOT_OBJ, grasps=pinch(-0.008),
+                       config=dataclasses.replace(cfg, approach_grasp_pads_margin=None))  # fmt: skip
+    assert loose.success, loose.message
+    assert loose.info["chosen"]["grasp_depth"][0] == 0.016  # backed off from the stand
+    assert to_panel(loose.q_approach[-1]) < -0.002  # the open pads end inside the panel
+    assert to_panel(loose.q_approach[-2]) > 0.01  # ... and are well above it one step earlier
+    far = plan_robot(robot, parts, traj, T_ROBOT_OBJ, grasps=pinch(-0.02), config=cfg)
+    assert far.success, far.message
+    assert far.info["attempts"][0]["approach_pads_at_grasp_best"] >= cfg.approach_grasp_pads_margin
+    assert to_panel(far.q_approach[-1]) > 0.003
 
 
 def test_plan_tracks_synthetic_trajectory_and_roundtrips(robot, tmp_path):
@@ -381,7 +452,9 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     plan = plan_robot(robot, [_cube()], traj, far, grasps={0: _grasps(6, 2)}, config=CFG)
     assert plan.result == PlanResult.unreachable and not plan.success
     rej = plan.info["attempts"][0]["rejections"]["right"]
-    assert rej["grasp_invalid"] == 2 and rej["pose_error"] == 6
+    # the jaw rolled 30° or 60° off the cube's faces: fully open, its pads end 2.3 mm inside the
+    # cube's vertical edges, so those four never seat (``approach_grasp_pads_margin``)
+    assert rej["grasp_invalid"] == 2 and rej["grasp_collision"] == 4 and rej["pose_error"] == 2
     save_plan(plan, tmp_path / "far")
     assert load_plan(tmp_path / "far").result == "unreachable"
     # a grasp tolerance no solution meets: every solved candidate is rejected at pose_error
@@ -397,7 +470,7 @@ def test_infeasible_requests_return_reasons(robot, tmp_path):
     both = plan_robot(robot, [_cube(), _cube(0.1, 10)], two, T_ROBOT_OBJ, grasps={0: _grasps(6, 0), 1: _grasps(6, 0)},
                       config=dataclasses.replace(CFG, grasp_position_tolerance=1e-7, parts=(0, 1)))  # fmt: skip
     rej = [a["rejections"]["right"] for a in both.info["attempts"]]
-    assert rej[0]["pose_error"] == 6 and rej[1]["grasp_collision"] == 6
+    assert rej[0]["pose_error"] == 2 and rej[0]["grasp_collision"] == 4 and rej[1]["grasp_collision"] == 6
     assert both.result == PlanResult.unreachable and both.info["failed_stage"] == "pose_error"
     none = plan_robot(robot, [_cube()], traj, T_ROBOT_OBJ, grasps={0: _grasps(0, 8)}, config=CFG)
     assert none.result == PlanResult.no_grasp and "grasp" in none.message

@@ -309,16 +309,20 @@ def hand_clearance(
     robot: YumiModel, hand: HandGeometry, sdf: PartSDF, T_world_tcp: Float[Array, "n k 7"],
     opening: Float[Array, " n"], T_world_part: Float[Array, "k parts 7"], part: Int[Array, ""],
     check_palm: bool = True, pad_table_allowance: Float[Array, ""] | float = 0.0,
+    own_pad_offset: Float[Array, ""] | float = jnp.inf,
 ) -> Float[Array, " n"]:
     """Smallest signed distance (m) of a free-floating gripper at TCP poses ``T_world_tcp``
     (n grasps × k keyframes) with finger ``opening`` (m) to the table and the parts: the pads
     may touch ``part`` (the grasped one), the palm too unless ``check_palm``; the pads' table
-    distances are increased by ``pad_table_allowance`` (m)."""
+    distances are increased by ``pad_table_allowance`` (m). A finite ``own_pad_offset`` (m) counts
+    the pads' distances to ``part`` too, increased by it (an open jaw must not end inside its part:
+    ``PlanConfig.approach_grasp_pads_margin``)."""
     geom = robot.geom
     Tt = jaxlie.SE3(geom.table_wxyz_xyz)
     P = sdf.values.shape[0]
     c = hand.radius.shape[0]
     allow = (jnp.arange(P)[None, :] == part) & ((hand.kind == 2) | (not check_palm))[:, None]  # (caps, P)
+    own_pad = (jnp.arange(P)[None, :] == part) & (hand.kind == 2)[:, None]
 
     def one(T7, o, Tp):
         T = jaxlie.SE3(T7)
@@ -332,7 +336,8 @@ def hand_clearance(
         x_part = jax.vmap(lambda Ti: Ti @ xs)(jaxlie.SE3(Tp).inverse())
         d = sdf_distance(sdf, jnp.broadcast_to(jnp.arange(P)[:, None], x_part.shape[:2]), x_part)
         d_cap = jax.ops.segment_min(d.T, hand.sample_cap, num_segments=c, indices_are_sorted=True) - hand.radius[:, None]
-        return jnp.minimum(jnp.min(d_tab), jnp.min(jnp.where(allow, jnp.inf, d_cap)))
+        d_cap = jnp.where(allow, jnp.where(own_pad, d_cap + own_pad_offset, jnp.inf), d_cap)
+        return jnp.minimum(jnp.min(d_tab), jnp.min(d_cap))
 
     per = jax.vmap(lambda T7, o: jax.vmap(lambda Tk, Tp: one(Tk, o, Tp))(T7, T_world_part))(T_world_tcp, opening)
     return jnp.min(per, axis=1)

@@ -185,6 +185,21 @@ class PlanConfig(eqx.Module):
     ground-truth plans). Off, the pads may brush their part on the way in (before session 28):
     on the demo's stapler a tilted approach slid a pad along the arm's edge (−0.5 to −1 mm on the
     proxies from 12 mm out) and knocked it 10.5 mm in simulation (Grasp failed)."""
+    approach_grasp_pads_margin: float | None = -0.001
+    """Where the approach ends (the grasp pose, the jaw still open as it arrives) the open finger
+    pads must keep at least this distance (m; negative: a penetration allowed) from the grasped
+    part's proxy; checked when grasps are seated (with ``seat_approach_opening``: a grasp is backed
+    off until it holds, else never seats) and again on each solved approach's last waypoint
+    (``pads_in_part_at_grasp``); None: unchecked (sessions before 51). The pads surround the pinched
+    part there, so ``approach_pads_clear_part`` and the seating leave them out; this weaker test
+    still sees a pad that ends inside the part beside the pinch. −1 mm because the proxies are
+    conservative by up to a few millimetres (a 4 cm cube sampled every 8 mm reads 0.1 mm where
+    MuJoCo has 5 mm). Studio led_light (session 50's robot trials, tracked and registered): the four
+    pinches of the panel's 6 mm tab that closed on nothing ended their approaches with a pad
+    3.0–3.7 mm into the panel on the proxies (0.9–1.7 mm into its true box in MuJoCo): closing, the
+    pad pushed the panel and the tab slipped out; re-planned with the check, all four pinch the tab
+    and succeed. The other approaches of those trials (led_light, stapler, sunglasses, wire_cutter)
+    ended 0.3–22 mm clear."""
     approach_steps: int = 6
     """Waypoints of the approach segment, pre-grasp to grasp inclusive."""
     approach_candidates: int = 32
@@ -642,7 +657,7 @@ SEAT_BLOCK = 512
 
 
 def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, T_parts: np.ndarray, part: int,
-                      cfg: PlanConfig) -> np.ndarray:
+                      cfg: PlanConfig, own_pad_offset: float = np.inf) -> np.ndarray:
     """:func:`hand_clearance` (+ ``hand_tolerance``) of n gripper trajectories (n, k, 7) in padded
     blocks of ``SEAT_BLOCK``."""
     n = T_tcp.shape[0]
@@ -652,7 +667,7 @@ def _clearance_blocks(robot, hand, sdf, T_tcp: np.ndarray, opening: np.ndarray, 
         sl = np.minimum(np.arange(s, s + SEAT_BLOCK), n - 1)  # pad with the last row
         c = hand_clearance(robot, hand, sdf, jnp.asarray(T_tcp[sl], jnp.float32), jnp.asarray(opening[sl]),
                            jnp.asarray(T_parts, jnp.float32), jnp.asarray(part), cfg.check_palm_on_grasped_part,
-                           _pad_table_allowance(cfg))  # fmt: skip
+                           _pad_table_allowance(cfg), jnp.asarray(own_pad_offset, jnp.float32))  # fmt: skip
         out[s : s + m] = np.asarray(c)[:m]
     return out + cfg.hand_tolerance
 
@@ -664,7 +679,8 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
     ``cfg.grasp_depths`` at which the free gripper clears the table and the parts at every
     keyframe (``ok``), else the depth of its largest clearance; returns (ok (n,), depth (n,)).
     With ``opening_approach`` (n,) the gripper must also clear them at the first keyframe with
-    the fingers at that opening: where the approach ends, before the jaw closes.
+    the fingers at that opening: where the approach ends, before the jaw closes; there its pads
+    must not end inside the grasped part either (``cfg.approach_grasp_pads_margin``).
 
     Only valid grasps are checked, and only at depths shallower than the one they already seat
     at. Each depth is checked coarse to fine: first at ``coarse`` keyframes spread over the
@@ -686,8 +702,9 @@ def _seat_grasps(robot, hand, sdf, Tg: np.ndarray, opening: np.ndarray, valid: n
         T_tcp = grasp_targets(T_robot_obj, T_obj_part_k, Td)  # (m, K, 7)
         c = _clearance_blocks(robot, hand, sdf, T_tcp[:, sub], opening[todo], T_robot_part[sub], part, cfg)
         if opening_approach is not None:
+            own = np.inf if cfg.approach_grasp_pads_margin is None else cfg.collision_margin - cfg.approach_grasp_pads_margin
             c = np.minimum(c, _clearance_blocks(robot, hand, sdf, T_tcp[:, first], opening_approach[todo],
-                                                T_robot_part[first], part, cfg))  # fmt: skip
+                                                T_robot_part[first], part, cfg, own))  # fmt: skip
         fine = np.flatnonzero(c >= cfg.collision_margin)
         if len(fine) and len(sub) < K:
             c[fine] = _clearance_blocks(robot, hand, sdf, T_tcp[fine], opening[todo[fine]], T_robot_part, part, cfg)
@@ -753,7 +770,8 @@ def plan_robot(
     (including arm-arm collisions). The best survivors by cost then get an approach segment
     (pre-grasp ``approach_distance`` behind the first grasp pose along the gripper z axis, to the
     grasp) that must track and be collision-free, the open pads clear of the grasped part too
-    until the grasp pose (``approach_pads_clear_part``). The first part (pair) with a feasible plan wins;
+    until the grasp pose (``approach_pads_clear_part``) and not inside it there
+    (``approach_grasp_pads_margin``). The first part (pair) with a feasible plan wins;
     within it, the lowest cost.
     When nothing follows the whole demo, the search runs again with the motion ending early,
     within ``end_slack_deg`` / ``end_slack_m`` of every part's final pose (``info["end_slack"]``).
@@ -1355,10 +1373,11 @@ def _combine(per_arm, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, a
 
 
 def _pads_to_grasped(robot_lite, coll, Qs: list, T_parts: np.ndarray, grasped: set, grip: np.ndarray,
-                     cfg: PlanConfig) -> np.ndarray:
+                     cfg: PlanConfig, last: bool = False) -> np.ndarray:
     """(n, G) smallest distance (m) of each arm's finger pads to the parts it grasps in any
-    candidate, along each solved approach ``Qs[j]`` (n, A, 16) without its last waypoint, with the
-    fingers at opening ``grip[:, j]``; evaluated in the solver's padded chunks (no new compile)."""
+    candidate, along each solved approach ``Qs[j]`` (n, A, 16) without its last waypoint (with
+    ``last``: at the last waypoint only), with the fingers at opening ``grip[:, j]``; evaluated in
+    the solver's padded chunks (no new compile)."""
     own = ~hand_part_mask(coll.proxy, T_parts.shape[1], sorted(grasped), pads_only=True)  # exactly those pad rows
     n, A = Qs[0].shape[:2]
     chunk = max(1, cfg.chunk_size)
@@ -1366,7 +1385,10 @@ def _pads_to_grasped(robot_lite, coll, Qs: list, T_parts: np.ndarray, grasped: s
     zeros_t, zeros_a = jnp.zeros((chunk, A, 2, 7), jnp.float32), jnp.zeros((chunk, A, 2), jnp.float32)
     for j, Q in enumerate(Qs):
         Q = np.asarray(Q, np.float32).copy()
-        Q[:, -1] = Q[:, -2]  # the last waypoint is left out
+        if last:
+            Q[:] = Q[:, -1:]
+        else:
+            Q[:, -1] = Q[:, -2]  # the last waypoint is left out
         for s in range(0, n, chunk):
             sl = np.minimum(np.arange(s, s + chunk), n - 1)
             m = min(chunk, n - s)
@@ -1431,6 +1453,11 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         # last, where they surround it and the proxies' few-mm conservatism decides nothing)
         own = _pads_to_grasped(robot_lite, coll, [bj.q for bj in bs], T_part0, grasped, grip, cfg)  # (n, G)
         alive_all &= own >= cfg.collision_margin
+    at_grasp = None
+    if cfg.approach_grasp_pads_margin is not None:
+        # where the approach ends the open pads surround the part; none may end inside it
+        at_grasp = _pads_to_grasped(robot_lite, coll, [bj.q for bj in bs], T_part0, grasped, grip, cfg, last=True)
+        alive_all &= at_grasp >= cfg.approach_grasp_pads_margin
     # per candidate: its first passing opening (or, if none passes, the last, for the counts)
     pick = np.where(alive_all.any(1), np.argmax(alive_all, 1), G - 1)
     b = jax.tree.map(lambda *fs: np.stack(fs, 1)[np.arange(n), pick], *bs)
@@ -1441,6 +1468,11 @@ def _approach(cands, params, robot_lite, coll, T_robot_part, cfg: PlanConfig, ac
         counts["pads_on_part"] = int(np.sum(alive & (own_m < cfg.collision_margin)))
         alive &= own_m >= cfg.collision_margin
         att["approach_pads_to_part_best"] = round(float(own_m.max()), 4) if n else None
+    if at_grasp is not None:
+        at_m = at_grasp[np.arange(n), pick]
+        counts["pads_in_part_at_grasp"] = int(np.sum(alive & (at_m < cfg.approach_grasp_pads_margin)))
+        alive &= at_m >= cfg.approach_grasp_pads_margin
+        att["approach_pads_at_grasp_best"] = round(float(at_m.max()), 4) if n else None
     # largest joint step into the trajectory's first keyframe (large if the segment ended in another
     # null-space branch)
     end_gap = np.max(np.abs(b.q[:, -1, :14] - b.q[:, -2, :14]), axis=1)
